@@ -1,0 +1,109 @@
+"""Task geometry of the four KUKA tasks as named boxes, readable without building a simulation.
+
+Every region is a :class:`Box` given by its centre and half-sizes in metres (world frame). The
+goal-space ``field`` and the un-inflated ``obstacles`` are what :class:`gchgg.graph.GoalGraph` is
+built from; the sampling ranges are what the tasks draw targets and object positions from.
+Numbers follow the authors' original KUKA environments (see ``REFERENCE.md``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+
+class Box(NamedTuple):
+    """An axis-aligned box: ``center`` and ``half`` (half-sizes), each ``(x, y, z)`` in metres."""
+
+    center: tuple[float, float, float]
+    half: tuple[float, float, float]
+
+    @property
+    def low(self) -> tuple[float, float, float]:
+        return tuple(c - h for c, h in zip(self.center, self.half))
+
+    @property
+    def high(self) -> tuple[float, float, float]:
+        return tuple(c + h for c, h in zip(self.center, self.half))
+
+
+@dataclass(frozen=True)
+class TaskGeometry:
+    """Where things are in one task.
+
+    Attributes:
+        name: task name, one of :data:`envs.TASKS`.
+        field: the goal-space field the graph lattice covers.
+        obstacles: obstacle boxes, un-inflated (the graph inflates them by its safety margin).
+        target_range: box the target goal is drawn from (uniformly; a zero half-size is fixed).
+        object_range: box the object's initial position is drawn from, ``None`` without an object.
+        episode_length: control steps per episode (T).
+        action_dim: 3 (gripper held closed) or 4 (last entry opens/closes the gripper).
+        table_height: z of the table top in metres, ``None`` without a table.
+    """
+
+    name: str
+    field: Box
+    obstacles: tuple[Box, ...]
+    target_range: Box
+    object_range: Box | None
+    episode_length: int
+    action_dim: int
+    table_height: float | None
+
+
+_PICK_FIELD = Box((0.75, 0.0, 1.2), (0.25, 0.35, 0.2))
+
+GEOMETRY: dict[str, TaskGeometry] = {
+    "reach": TaskGeometry(
+        name="reach",
+        # No obstacle; the field is the target range (initial tip +- 0.15 m) with some slack.
+        field=Box((0.75, 0.0, 1.2), (0.2, 0.2, 0.2)),
+        obstacles=(),
+        target_range=Box((0.75, 0.0, 1.2), (0.15, 0.15, 0.15)),
+        object_range=None,
+        episode_length=50,
+        action_dim=3,
+        table_height=None,
+    ),
+    "push_new": TaskGeometry(
+        name="push_new",
+        field=Box((0.75, 0.0, 0.9), (0.25, 0.35, 0.05)),
+        obstacles=(Box((0.685, 0.0, 0.925), (0.185, 0.04, 0.075)),),
+        target_range=Box((0.65, -0.2, 0.85), (0.12, 0.12, 0.0)),
+        object_range=Box((0.71, 0.25, 0.85), (0.0, 0.0, 0.0)),
+        episode_length=100,
+        action_dim=3,
+        table_height=0.85,
+    ),
+    "pick_no_obstacle": TaskGeometry(
+        name="pick_no_obstacle",
+        field=_PICK_FIELD,
+        obstacles=(),
+        target_range=Box((0.75, -0.2, 1.3), (0.2, 0.1, 0.0)),
+        object_range=Box((0.75, 0.2, 1.0), (0.06, 0.06, 0.0)),
+        episode_length=100,
+        action_dim=4,
+        table_height=1.0,
+    ),
+    "pick_obstacle": TaskGeometry(
+        name="pick_obstacle",
+        field=_PICK_FIELD,
+        obstacles=(Box((0.75, 0.0, 1.075), (0.25, 0.04, 0.075)),),
+        target_range=Box((0.75, -0.2, 1.0), (0.2, 0.1, 0.0)),
+        object_range=Box((0.75, 0.2, 1.0), (0.06, 0.06, 0.0)),
+        episode_length=100,
+        action_dim=4,
+        table_height=1.0,
+    ),
+}
+
+TASKS: tuple[str, ...] = tuple(GEOMETRY)
+
+
+def geometry(name: str) -> TaskGeometry:
+    """The geometry of task ``name``; a ``ValueError`` lists the valid names otherwise."""
+    try:
+        return GEOMETRY[name]
+    except KeyError:
+        raise ValueError(f"unknown task {name!r}; valid tasks: {', '.join(TASKS)}") from None
