@@ -40,6 +40,8 @@ class TaskGeometry:
         episode_length: control steps per episode (T).
         action_dim: 3 (gripper held closed) or 4 (last entry opens/closes the gripper).
         table_height: z of the table top in metres, ``None`` without a table.
+        gripper_start: where the grip site (between the finger pads) starts each episode, metres.
+            In ``reach`` the target range is this point +- 0.15 m.
     """
 
     name: str
@@ -50,6 +52,7 @@ class TaskGeometry:
     episode_length: int
     action_dim: int
     table_height: float | None
+    gripper_start: tuple[float, float, float] = (0.75, 0.0, 1.2)
 
 
 _PICK_FIELD = Box((0.75, 0.0, 1.2), (0.25, 0.35, 0.2))
@@ -65,36 +68,42 @@ GEOMETRY: dict[str, TaskGeometry] = {
         episode_length=50,
         action_dim=3,
         table_height=None,
+        gripper_start=(0.75, 0.0, 1.2),
     ),
     "push_new": TaskGeometry(
         name="push_new",
         field=Box((0.75, 0.0, 0.9), (0.25, 0.35, 0.05)),
         obstacles=(Box((0.685, 0.0, 0.925), (0.185, 0.04, 0.075)),),
-        target_range=Box((0.65, -0.2, 0.85), (0.12, 0.12, 0.0)),
-        object_range=Box((0.71, 0.25, 0.85), (0.0, 0.0, 0.0)),
+        # Goals and the object's start are at the resting height of the 4 cm cube's centre.
+        target_range=Box((0.65, -0.2, 0.87), (0.12, 0.12, 0.0)),
+        object_range=Box((0.71, 0.25, 0.87), (0.0, 0.0, 0.0)),
         episode_length=100,
         action_dim=3,
         table_height=0.85,
+        gripper_start=(0.75, 0.12, 0.95),
     ),
     "pick_no_obstacle": TaskGeometry(
         name="pick_no_obstacle",
         field=_PICK_FIELD,
         obstacles=(),
         target_range=Box((0.75, -0.2, 1.3), (0.2, 0.1, 0.0)),
-        object_range=Box((0.75, 0.2, 1.0), (0.06, 0.06, 0.0)),
+        object_range=Box((0.75, 0.2, 1.015), (0.06, 0.06, 0.0)),  # the 3 cm cube's resting centre
         episode_length=100,
         action_dim=4,
         table_height=1.0,
+        gripper_start=(0.75, 0.1, 1.2),
     ),
     "pick_obstacle": TaskGeometry(
         name="pick_obstacle",
         field=_PICK_FIELD,
         obstacles=(Box((0.75, 0.0, 1.075), (0.25, 0.04, 0.075)),),
-        target_range=Box((0.75, -0.2, 1.0), (0.2, 0.1, 0.0)),
-        object_range=Box((0.75, 0.2, 1.0), (0.06, 0.06, 0.0)),
+        # Goals on the table: the resting height of the 3 cm cube's centre.
+        target_range=Box((0.75, -0.2, 1.015), (0.2, 0.1, 0.0)),
+        object_range=Box((0.75, 0.2, 1.015), (0.06, 0.06, 0.0)),
         episode_length=100,
         action_dim=4,
         table_height=1.0,
+        gripper_start=(0.75, 0.1, 1.2),
     ),
 }
 

@@ -1,0 +1,174 @@
+"""Batched TorchRL env: one ``EnvBase`` that steps N simulations of a KUKA task per call."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from envs import kuka, suite
+from envs.geometry import geometry
+from envs.reward import reward
+
+
+def task_seeds(seed: int | None, num_envs: int) -> list[int | None]:
+    """The seed of each simulation's task random state for env seed ``seed``.
+
+    Independent streams drawn from ``np.random.SeedSequence(seed)``; all ``None`` (fresh entropy)
+    when ``seed`` is ``None``. ``envs.load(name, seed=task_seeds(s, n)[i])`` reproduces env ``i``.
+    """
+    if seed is None:
+        return [None] * num_envs
+    return [int(s) for s in np.random.SeedSequence(seed).generate_state(num_envs)]
+
+
+class KukaEnv(EnvBase):
+    """``num_envs`` simulations of one KUKA task behind a single TorchRL env (``batch_size=[num_envs]``).
+
+    Every ``step`` applies one action per simulation, advances all of them by one control step
+    (0.05 s) and returns one TensorDict; the policy therefore runs once per step for all of them.
+    Keys (float32 unless noted): ``observation`` ``[N, obs_dim]`` (25 with an object, 10 in reach),
+    ``achieved_goal`` ``[N, 3]``, ``desired_goal`` ``[N, 3]``, ``is_success`` ``[N, 1]`` bool,
+    ``action`` ``[N, A]`` in [-1, 1] (A = 3 or 4) and, after a step, ``reward`` ``[N, 1]`` (eq. 23,
+    :func:`envs.reward` of the next achieved goal and the desired goal) and bool ``done`` /
+    ``terminated`` / ``truncated`` ``[N, 1]``. Episodes only time out: ``truncated`` (and ``done``)
+    turn True at the task's episode length T; ``terminated`` is always False.
+
+    ``reset`` reads from its input TensorDict, per env: ``desired_goal`` ``[N, 3]`` (used instead of
+    a sampled goal) and, for tasks with an object, ``object_position`` ``[N, 3]`` (the object is
+    placed at rest at its x, y; z is the table's resting height). ``_reset`` ``[N, 1]`` bool resets
+    only the marked envs; the others keep their state.
+
+    Args:
+        name: one of :data:`envs.TASKS`.
+        num_envs: number of simulations N, >= 1.
+        seed: seed for the tasks' random states (see :func:`task_seeds`).
+        **options: ``threshold`` (success distance in metres, default 0.05).
+
+    >>> import torch
+    >>> env = KukaEnv("reach", num_envs=2, seed=0)
+    >>> td = env.reset()
+    >>> td = env.rand_step(td)
+    >>> td["next", "reward"].shape
+    torch.Size([2, 1])
+    """
+
+    def __init__(self, name: str, num_envs: int = 1, seed: int | None = None, **options):
+        geom = geometry(name)
+        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        suite.check_options(options)
+        super().__init__(batch_size=torch.Size([num_envs]), device="cpu")
+        self.task_name = name
+        self.geometry = geom
+        self.num_envs = num_envs
+        dm_envs = [suite.SUITE[name](**options) for _ in range(num_envs)]
+        self._physics = [env.physics for env in dm_envs]
+        self._tasks = [env.task for env in dm_envs]
+        self._n_sub_steps = dm_envs[0]._n_sub_steps
+        task = self._tasks[0]
+        self.threshold = task.threshold
+        self.obs_dim, self.action_dim, self.has_object = task.obs_dim, task.action_dim, task.has_object
+        self._steps = np.zeros(num_envs, dtype=np.int64)
+        self._observation = np.zeros((num_envs, self.obs_dim), np.float32)
+        self._achieved = np.zeros((num_envs, 3), np.float32)
+        self._goal = np.zeros((num_envs, 3), np.float32)
+        self._make_specs()
+        self._set_seed(seed)
+
+    def _make_specs(self) -> None:
+        n = self.num_envs
+        flag = lambda: Categorical(2, shape=(n, 1), dtype=torch.bool)  # noqa: E731
+        self.observation_spec = Composite(
+            observation=Unbounded((n, self.obs_dim), dtype=torch.float32),
+            achieved_goal=Unbounded((n, 3), dtype=torch.float32),
+            desired_goal=Unbounded((n, 3), dtype=torch.float32),
+            is_success=flag(),
+            shape=(n,),
+        )
+        self.action_spec = Bounded(-1.0, 1.0, shape=(n, self.action_dim), dtype=torch.float32)
+        self.reward_spec = Bounded(-1.0, 0.0, shape=(n, 1), dtype=torch.float32)
+        self.done_spec = Composite(done=flag(), terminated=flag(), truncated=flag(), shape=(n,))
+
+    def _set_seed(self, seed: int | None) -> None:
+        for task, task_seed in zip(self._tasks, task_seeds(seed, self.num_envs)):
+            task._random = np.random.RandomState(task_seed)
+
+    # -- reset ------------------------------------------------------------------------------------
+
+    def _reset_input(self, tensordict: TensorDictBase | None, key: str) -> np.ndarray | None:
+        """The per-env ``[N, 3]`` array under ``key`` of the reset input, validated, or ``None``."""
+        if tensordict is None or key not in tensordict.keys():
+            return None
+        if key == "object_position" and not self.has_object:
+            raise ValueError(f"object_position was given at reset, but task {self.task_name!r} has no object")
+        value = torch.as_tensor(tensordict.get(key))
+        expected = (self.num_envs, 3)
+        if tuple(value.shape) != expected:
+            raise ValueError(f"{key} at reset must have shape {list(expected)}, got {list(value.shape)}")
+        value = value.detach().cpu().to(torch.float64).numpy()
+        if not np.isfinite(value).all():
+            raise ValueError(f"{key} at reset must be finite, got non-finite values in rows "
+                             f"{np.flatnonzero(~np.isfinite(value).all(-1)).tolist()}")
+        return value
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        goals = self._reset_input(tensordict, "desired_goal")
+        positions = self._reset_input(tensordict, "object_position")
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        indices = range(self.num_envs) if mask is None else np.flatnonzero(mask.reshape(self.num_envs).cpu().numpy())
+        for i in indices:
+            physics, task = self._physics[i], self._tasks[i]
+            with physics.reset_context():
+                task.initialize_episode(physics)
+                if goals is not None:
+                    task.set_goal(physics, goals[i])
+                if positions is not None:
+                    task.set_object_position(physics, positions[i])
+            self._goal[i] = physics.target_position()
+            task.observe_into(physics, self._observation[i], self._achieved[i])
+            self._steps[i] = 0
+        truncated = torch.from_numpy(self._steps >= self.geometry.episode_length).unsqueeze(-1)
+        return self._output(truncated)
+
+    # -- step -------------------------------------------------------------------------------------
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get("action")
+        if action.shape != (self.num_envs, self.action_dim):
+            raise ValueError(f"action must have shape [{self.num_envs}, {self.action_dim}] "
+                             f"(num_envs, action size of {self.task_name!r}), got {list(action.shape)}")
+        actions = action.detach().cpu().numpy().astype(np.float64)
+        for i, (physics, task) in enumerate(zip(self._physics, self._tasks)):
+            task.before_step(actions[i], physics)
+            physics.step(self._n_sub_steps)
+            task.observe_into(physics, self._observation[i], self._achieved[i])
+        self._steps += 1
+        truncated = torch.from_numpy(self._steps >= self.geometry.episode_length).unsqueeze(-1)
+        return self._output(truncated, with_reward=True)
+
+    def _output(self, truncated: torch.Tensor, with_reward: bool = False) -> TensorDict:
+        achieved = torch.from_numpy(self._achieved.copy())
+        goal = torch.from_numpy(self._goal.copy())
+        rewards = reward(achieved, goal, self.threshold).unsqueeze(-1)
+        out = {
+            "observation": torch.from_numpy(self._observation.copy()),
+            "achieved_goal": achieved,
+            "desired_goal": goal,
+            "is_success": rewards == 0.0,
+            "done": truncated,
+            "terminated": torch.zeros_like(truncated),
+            "truncated": truncated.clone(),
+        }
+        if with_reward:
+            out["reward"] = rewards
+        return TensorDict(out, batch_size=self.batch_size)
+
+    # -- access to the simulations -------------------------------------------------------------------
+
+    @property
+    def physics(self) -> list[kuka.Physics]:
+        """The N dm_control ``Physics`` objects (e.g. ``env.physics[0].render(camera_id="front")``)."""
+        return list(self._physics)

@@ -1,0 +1,72 @@
+"""Atomic, checksummed checkpoints: a run killed at any moment leaves the last good one intact.
+
+A checkpoint file is a small header (magic, SHA-256 of the payload, payload length) followed by a
+``torch.save`` payload. :func:`save` writes to a temporary file in the same folder, flushes it to
+disk and renames it over the old checkpoint, so a reader sees either the previous checkpoint or the
+new one, never a partial file. :func:`load` verifies the header and the checksum and raises
+:class:`CorruptCheckpointError` when anything does not match.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import struct
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+_MAGIC = b"GCHGGCK1"
+_HEADER = struct.Struct("<8s32sQ")  # magic, sha256 digest, payload length
+
+
+class CorruptCheckpointError(RuntimeError):
+    """The checkpoint file is truncated, altered or not a gchgg checkpoint."""
+
+
+def save(state: dict[str, Any], path: str | os.PathLike) -> None:
+    """Write ``state`` to ``path`` atomically (temporary file + fsync + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    payload = buffer.getbuffer()
+    header = _HEADER.pack(_MAGIC, hashlib.sha256(payload).digest(), len(payload))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(header)
+            f.write(payload)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load(path: str | os.PathLike) -> dict[str, Any]:
+    """Read a checkpoint written by :func:`save`, verifying its checksum.
+
+    Raises:
+        FileNotFoundError: there is no file at ``path``.
+        CorruptCheckpointError: the file is truncated, altered or not a gchgg checkpoint.
+    """
+    path = Path(path)
+    data = path.read_bytes()
+    if len(data) < _HEADER.size:
+        raise CorruptCheckpointError(f"checkpoint {path} is corrupt: {len(data)} bytes, shorter than its header")
+    magic, digest, length = _HEADER.unpack_from(data)
+    payload = memoryview(data)[_HEADER.size :]
+    if magic != _MAGIC:
+        raise CorruptCheckpointError(f"checkpoint {path} is corrupt: not a gchgg checkpoint (bad magic {magic!r})")
+    if len(payload) != length:
+        raise CorruptCheckpointError(
+            f"checkpoint {path} is corrupt: payload has {len(payload)} bytes, header says {length} (truncated?)"
+        )
+    if hashlib.sha256(payload).digest() != digest:
+        raise CorruptCheckpointError(f"checkpoint {path} is corrupt: checksum mismatch")
+    return torch.load(io.BytesIO(payload), weights_only=False)
