@@ -1,0 +1,200 @@
+"""Replay memory and sampler speed on push_new: bytes per stored transition, seconds per sample() of 256.
+
+Prints, in one run:
+
+* the bytes one stored transition costs (a real push_new rollout through ``EpisodeEnergy`` and
+  ``HindsightRelabel(k=4)``) and what a buffer of 10,000 episodes (T = 100) with their copies
+  reserves in a ``LazyTensorStorage``;
+* on a full buffer of 5,000 push_new-shaped episodes (2.5 M transitions; synthetic object paths
+  around the wall, see ``synthetic_episodes``) with the push_new graph (31 × 31 × 11, margin 0.02):
+  seconds per ``buffer.sample()`` of 256 for uniform, EBP, graph curriculum (K = 8) and CHER greedy,
+  each as a ratio to uniform (medians over interleaved rounds: the machine is shared and noisy);
+* how often the curriculum's nearest-neighbour shortlist could not prove a goal's nearest neighbour
+  (more pairs are then read), and that it always equals the all-pairs value.
+
+Run: ``python benchmarks/samplers.py`` (``--episodes``, ``--rounds`` to change the sizes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
+os.environ.setdefault("MUJOCO_GL", "disable")
+
+import torch  # noqa: E402
+from tensordict import TensorDict  # noqa: E402
+from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer  # noqa: E402
+
+import envs  # noqa: E402
+from gchgg.graph import GoalGraph  # noqa: E402
+from gchgg.samplers import (  # noqa: E402
+    AdaptiveTradeoff,
+    CherSampler,
+    EnergySampler,
+    GraphCurriculumSampler,
+    nearest_neighbour_distances,
+)
+from gchgg.transforms import EpisodeEnergy, HindsightRelabel  # noqa: E402
+
+K_HER = 4
+BATCH = 256
+
+
+def relabel(generator: torch.Generator) -> tuple[EpisodeEnergy, HindsightRelabel]:
+    return EpisodeEnergy(), HindsightRelabel(envs.reward, k=K_HER, generator=generator)
+
+
+def memory() -> None:
+    env = envs.make("push_new", num_envs=2, seed=0)
+    rollout = env.rollout(env_steps(env), break_when_any_done=False)
+    energy, her = relabel(torch.Generator().manual_seed(0))
+    transitions = her(energy(rollout))
+    per_transition = transitions.bytes() / transitions.numel()
+    steps = rollout.shape[-1]
+    rows = 10_000 * (K_HER + 1) * steps
+    storage = LazyTensorStorage(rows)
+    storage.set(torch.arange(len(transitions)), transitions)  # allocates all rows (untouched pages)
+    reserved = storage._storage.bytes()
+    print(f"memory: one stored transition = {per_transition:.0f} bytes "
+          f"({', '.join(sorted(str(k) for k in transitions.keys(True, True)))})")
+    print(f"memory: 10,000 push_new episodes x {K_HER + 1} x T={steps} = {rows:,} transitions "
+          f"reserve {reserved / 1e9:.2f} GB in LazyTensorStorage (target <= 2 GB)")
+
+
+def env_steps(env) -> int:
+    return envs.geometry("push_new").episode_length
+
+
+def synthetic_episodes(num: int, steps: int, generator: torch.Generator) -> TensorDict:
+    """push_new-shaped episodes: half leave the object at its start, the rest push it along a random path.
+
+    Pushed objects head for the target side (y < 0) and often end on the wall (off the graph) or
+    go round its end, like the object paths of a learning agent; z stays on the table, a few fall off.
+    """
+    geometry = envs.geometry("push_new")
+    start = torch.tensor(geometry.object_range.center)
+    positions = start.expand(num, steps + 1, 3).clone()
+    moves = torch.rand(num, generator=generator) < 0.5
+    t0 = torch.randint(0, steps // 2, (num, 1), generator=generator)
+    heading = torch.randn(num, 1, 2, generator=generator) * 0.6 + torch.tensor([0.0, -1.0])
+    heading = heading / heading.norm(dim=-1, keepdim=True)
+    speed = torch.rand(num, 1, 1, generator=generator) * 0.012
+    wiggle = torch.randn(num, steps, 2, generator=generator).cumsum(1) * 0.002
+    active = (torch.arange(steps)[None, :] >= t0) & moves[:, None]  # [N, T]
+    jitter = wiggle.diff(dim=1, prepend=wiggle[:, :1])
+    step = ((heading * speed).expand(num, steps, 2) + jitter) * active[..., None]
+    positions[:, 1:, :2] += step.cumsum(1)
+    fall = (torch.rand(num, generator=generator) < 0.03) & moves
+    positions[fall, -10:, 2] -= torch.linspace(0.0, 0.5, 10)
+    low, high = geometry.target_range.low, geometry.target_range.high
+    target = torch.stack([low[i] + (high[i] - low[i]) * torch.rand(num, generator=generator) for i in range(3)], -1)
+    obs = torch.randn(num, steps + 1, 25, generator=generator)
+    last = torch.zeros(num, steps, 1, dtype=torch.bool)
+    last[:, -1] = True
+    return TensorDict(
+        {
+            "observation": obs[:, :-1],
+            "achieved_goal": positions[:, :-1],
+            "desired_goal": target[:, None].expand(num, steps, 3),
+            "action": torch.rand(num, steps, 3, generator=generator) * 2 - 1,
+            "next": {
+                "observation": obs[:, 1:],
+                "achieved_goal": positions[:, 1:],
+                "reward": -torch.ones(num, steps, 1),
+                "done": last,
+                "terminated": torch.zeros(num, steps, 1, dtype=torch.bool),
+                "truncated": last.clone(),
+            },
+        },
+        [num, steps],
+    )
+
+
+def fill(storage: LazyTensorStorage, episodes: int, steps: int, generator: torch.Generator) -> None:
+    energy, her = relabel(generator)
+    writer = TensorDictReplayBuffer(storage=storage, batch_size=BATCH)
+    for start in range(0, episodes, 250):
+        writer.extend(her(energy(synthetic_episodes(min(250, episodes - start), steps, generator))))
+
+
+def speed(episodes: int, rounds: int) -> None:
+    geometry = envs.geometry("push_new")
+    graph = GoalGraph(geometry.field, geometry.obstacles, n=(31, 31, 11), margin=0.02)
+    steps = geometry.episode_length
+    generator = torch.Generator().manual_seed(0)
+    storage = LazyTensorStorage(episodes * (K_HER + 1) * steps)
+    fill(storage, episodes, steps, generator)
+    print(f"buffer: {episodes:,} episodes, {len(storage):,} transitions, graph {graph}")
+
+    tradeoff = AdaptiveTradeoff()
+    tradeoff.update(distance=0.3)  # λ = 1000·exp(−0.3/0.09) ≈ 35.7, mid-training
+    samplers = {
+        "uniform": RandomSampler(),
+        "EBP": EnergySampler("energy"),
+        "graph curriculum K=8": GraphCurriculumSampler(graph, 8, tradeoff, energy_key="energy"),
+        "CHER greedy (pool 5,000)": CherSampler(pool_size=5000),
+    }
+    buffers = {
+        name: TensorDictReplayBuffer(storage=storage, sampler=sampler, batch_size=BATCH,
+                                     generator=torch.Generator().manual_seed(1))
+        for name, sampler in samplers.items()
+    }
+    repeats = {name: (2 if name.startswith("CHER") else 50) for name in buffers}
+    times: dict[str, list[float]] = {name: [] for name in buffers}
+    alone: dict[str, list[float]] = {name: [] for name in buffers}  # the sampler's sample() without the row gather
+    for name, buffer in buffers.items():  # warm-up (EBP cache, graph vertices)
+        buffer.sample()
+    for _ in range(rounds):
+        for name, buffer in buffers.items():
+            start = time.perf_counter()
+            for _ in range(repeats[name]):
+                buffer.sample()
+            times[name].append((time.perf_counter() - start) / repeats[name])
+            start = time.perf_counter()
+            for _ in range(repeats[name]):
+                buffer.sampler.sample(storage, BATCH)
+            alone[name].append((time.perf_counter() - start) / repeats[name])
+    uniform = statistics.median(times["uniform"])
+    print(f"buffer.sample() of {BATCH} (indices + row gather), median of {rounds} interleaved rounds, "
+          f"{torch.get_num_threads()} thread:")
+    for name, values in times.items():
+        seconds = statistics.median(values)
+        print(f"  {name:26s} {seconds * 1e3:9.3f} ms   {seconds / uniform:8.1f} x uniform   "
+              f"(sampler alone {statistics.median(alone[name]) * 1e3:.3f} ms)")
+    print(f"  (CHER: {statistics.median(times['CHER greedy (pool 5,000)']) * 1000:.0f} s per 1,000-update iteration)")
+    shortlist_check(storage, graph, generator)
+
+
+def shortlist_check(storage, graph, generator: torch.Generator, draws: int = 20) -> None:
+    goals = storage._storage.get("desired_goal")[: len(storage)]
+    rescored = total = mismatched = 0
+    for _ in range(draws):
+        batch = goals[torch.randint(len(goals), (8 * BATCH,), generator=generator)].view(8, BATCH, 3)
+        stats: dict = {}
+        fast = nearest_neighbour_distances(batch, graph, neighbours=3, stats=stats)
+        exact = nearest_neighbour_distances(batch, graph, neighbours=None)
+        both_finite = torch.isfinite(fast) & torch.isfinite(exact)
+        mismatched += int(((fast - exact).abs()[both_finite] > 1e-6).sum())
+        mismatched += int((torch.isfinite(fast) != torch.isfinite(exact)).sum())
+        rescored += stats["rescored"]
+        total += batch.shape[0] * batch.shape[1]
+    print(f"nearest neighbours (shortlist of 3): {rescored / total:.1%} of goals not proven by the shortlist "
+          f"(more pairs read); {mismatched} of {total:,} differ from the all-pairs value")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=5000)
+    parser.add_argument("--rounds", type=int, default=7)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    memory()
+    speed(args.episodes, args.rounds)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,18 @@
+"""Replay-buffer samplers for goal-conditioned TorchRL pipelines: EBP, graph curriculum (Alg. 1), CHER, λ schedules."""
+
+from gchgg.samplers.cher import CherSampler
+from gchgg.samplers.curriculum import GraphCurriculumSampler, nearest_neighbour_distances
+from gchgg.samplers.energy import EnergySampler
+from gchgg.samplers.tradeoff import AdaptiveTradeoff, ExponentialTradeoff, FixedTradeoff, Tradeoff, as_tradeoff
+
+__all__ = [
+    "AdaptiveTradeoff",
+    "CherSampler",
+    "EnergySampler",
+    "ExponentialTradeoff",
+    "FixedTradeoff",
+    "GraphCurriculumSampler",
+    "Tradeoff",
+    "as_tradeoff",
+    "nearest_neighbour_distances",
+]

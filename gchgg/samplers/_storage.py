@@ -1,0 +1,69 @@
+"""Shared plumbing of the samplers: reading one field from a replay storage, the generator, state files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import NestedKey, is_tensor_collection
+from torchrl.data.replay_buffers.storages import Storage, TensorStorage
+
+_STATE_FILE = "sampler_state.json"
+
+
+def check_sampleable(storage: Storage, sampler: object) -> int:
+    """Number of stored rows; raises if the storage is empty or not one transition per row."""
+    n = len(storage)
+    if n == 0:
+        raise RuntimeError(f"{type(sampler).__name__}: cannot sample from an empty storage; extend the buffer first")
+    ndim = getattr(storage, "ndim", 1)
+    if ndim != 1:
+        raise ValueError(
+            f"{type(sampler).__name__} samples transitions from a 1-D storage (e.g. LazyTensorStorage(max_size)), "
+            f"got a storage with ndim={ndim}; store the flattened output of HindsightRelabel"
+        )
+    return n
+
+
+def read_field(storage: Storage, key: NestedKey, index: torch.Tensor | None, sampler: object) -> torch.Tensor:
+    """``storage[index][key]`` without gathering whole rows (all ``len(storage)`` rows when ``index`` is None)."""
+    n = len(storage)
+    if isinstance(storage, TensorStorage) and is_tensor_collection(storage._storage):
+        values = storage._storage.get(key, None)
+        if values is None:
+            _missing(storage._storage, key, sampler)
+        return values[:n] if index is None else values[index]
+    data = storage.get(torch.arange(n) if index is None else index)  # generic storages: gathers rows
+    if not is_tensor_collection(data) or data.get(key, None) is None:
+        _missing(data, key, sampler)
+    return data.get(key)
+
+
+def _missing(data: Any, key: NestedKey, sampler: object):
+    keys = sorted(map(str, data.keys(include_nested=True, leaves_only=True))) if is_tensor_collection(data) else []
+    raise KeyError(
+        f"{type(sampler).__name__} reads {key!r} from the replay storage, but the stored transitions have keys "
+        f"{keys}; store it (HindsightRelabel writes 'desired_goal' and 'target_goal', EpisodeEnergy 'energy') "
+        f"or pass the right key to the sampler"
+    )
+
+
+def generator(sampler) -> torch.Generator:
+    """The buffer's generator (``sampler._rng``); outside a buffer a private, randomly seeded one (not global)."""
+    if sampler._rng is None:
+        rng = torch.Generator()
+        rng.seed()
+        sampler._rng = rng
+    return sampler._rng
+
+
+def dump_state(state: dict, path) -> None:
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    (path / _STATE_FILE).write_text(json.dumps(state, indent=1))
+
+
+def load_state(path) -> dict:
+    return json.loads((Path(path) / _STATE_FILE).read_text())

@@ -1,0 +1,167 @@
+"""Trade-off schedules λ between diversity and proximity: fixed, CHER's (eq. 4), GC-HGG's adaptive (eq. 20).
+
+A schedule is a small object the training loop updates (``update(...)``) and a sampler reads
+(``value``) at every draw; its ``state_dict`` round-trips through checkpoints. Samplers take a
+schedule or a plain float (a :class:`FixedTradeoff`), see :func:`as_tradeoff`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Protocol, runtime_checkable
+
+__all__ = ["AdaptiveTradeoff", "ExponentialTradeoff", "FixedTradeoff", "Tradeoff", "as_tradeoff"]
+
+
+def _number(name: str, value: Any, *, low: float | None = None, strict: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    if low is not None and (value <= low if strict else value < low):
+        raise ValueError(f"{name} must be {'>' if strict else '>='} {low}, got {value!r}")
+    return float(value)
+
+
+@runtime_checkable
+class Tradeoff(Protocol):
+    """What a sampler needs from a schedule."""
+
+    @property
+    def value(self) -> float: ...
+
+    def update(self, distance: float | None = None) -> float: ...
+
+    def state_dict(self) -> dict[str, Any]: ...
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None: ...
+
+
+class FixedTradeoff:
+    """A constant λ (≥ 0); ``update`` changes nothing.
+
+    >>> FixedTradeoff(2.0).update(distance=0.3)
+    2.0
+    """
+
+    def __init__(self, value: float = 1.0) -> None:
+        self._value = _number("tradeoff", value, low=0.0)
+
+    @property
+    def value(self) -> float:
+        return self._value
+
+    def update(self, distance: float | None = None) -> float:
+        return self._value
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"value": self._value}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self._value = _number("tradeoff", state_dict["value"], low=0.0)
+
+    def __repr__(self) -> str:
+        return f"FixedTradeoff({self._value})"
+
+
+class ExponentialTradeoff:
+    """CHER's schedule λ_k = (1 + τ)^k · λ_0 (eq. 4): k counts the calls to ``update``.
+
+    The caller decides what a step is: GC-HGG's CHER runs step once per iteration with τ = 0.005;
+    CHER's own code stepped once per sampled batch with τ = 1e-4.
+
+    Args:
+        lambda_0: λ before the first update (≥ 0). Default 1.
+        tau: growth rate per update (> −1). Default 0.005.
+
+    >>> schedule = ExponentialTradeoff(lambda_0=1.0, tau=0.5)
+    >>> [schedule.update() for _ in range(3)]
+    [1.5, 2.25, 3.375]
+    """
+
+    def __init__(self, lambda_0: float = 1.0, tau: float = 0.005) -> None:
+        self.lambda_0 = _number("lambda_0", lambda_0, low=0.0)
+        self.tau = _number("tau", tau, low=-1.0, strict=True)
+        self.step = 0
+
+    @property
+    def value(self) -> float:
+        return self.lambda_0 * (1.0 + self.tau) ** self.step
+
+    def update(self, distance: float | None = None) -> float:
+        self.step += 1
+        return self.value
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"lambda_0": self.lambda_0, "tau": self.tau, "step": self.step}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.lambda_0 = _number("lambda_0", state_dict["lambda_0"], low=0.0)
+        self.tau = _number("tau", state_dict["tau"], low=-1.0, strict=True)
+        self.step = int(state_dict["step"])
+
+    def __repr__(self) -> str:
+        return f"ExponentialTradeoff(lambda_0={self.lambda_0}, tau={self.tau}, step={self.step})"
+
+
+class AdaptiveTradeoff:
+    """GC-HGG's λ = η · exp(−D / σ²) (eq. 20), D the distance between intermediate and target goals.
+
+    D is the graph-based Wasserstein distance D_G(T, T*) of eq. 21, which the goal generator
+    estimates as the mean matched distance of the iteration. A large D (intermediate goals far from
+    the targets) gives λ ≈ 0: pure diversity; as D shrinks λ grows towards η: proximity.
+
+    Args:
+        eta: η ≥ 0. Default 1000.
+        sigma: σ > 0 in metres. Default 0.3.
+        initial: λ before the first update. Default 0, as in the original code (which updates λ only
+            after the first iteration, where the intermediate goals are the targets themselves).
+
+    >>> schedule = AdaptiveTradeoff(eta=1000.0, sigma=0.3)
+    >>> schedule.value, round(schedule.update(distance=0.3), 2), round(schedule.update(distance=0.0), 2)
+    (0.0, 35.67, 1000.0)
+    """
+
+    def __init__(self, eta: float = 1000.0, sigma: float = 0.3, initial: float = 0.0) -> None:
+        self.eta = _number("eta", eta, low=0.0)
+        self.sigma = _number("sigma", sigma, low=0.0, strict=True)
+        self._value = _number("initial", initial, low=0.0)
+        self.distance: float | None = None
+
+    @property
+    def value(self) -> float:
+        return self._value
+
+    def update(self, distance: float | None = None) -> float:
+        """Sets λ from the latest distance D (metres, ≥ 0; ``inf`` gives λ = 0) and returns it."""
+        if distance is None:
+            raise ValueError("AdaptiveTradeoff.update needs distance=D, the mean intermediate-to-target goal distance")
+        distance = float(distance)
+        if math.isnan(distance) or distance < 0:
+            raise ValueError(f"distance must be >= 0 metres (inf allowed), got {distance!r}")
+        self.distance = distance
+        self._value = self.eta * math.exp(-distance / self.sigma**2)
+        return self._value
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"eta": self.eta, "sigma": self.sigma, "value": self._value, "distance": self.distance}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.eta = _number("eta", state_dict["eta"], low=0.0)
+        self.sigma = _number("sigma", state_dict["sigma"], low=0.0, strict=True)
+        self._value = _number("value", state_dict["value"], low=0.0)
+        distance = state_dict.get("distance")
+        self.distance = None if distance is None else float(distance)
+
+    def __repr__(self) -> str:
+        return f"AdaptiveTradeoff(eta={self.eta}, sigma={self.sigma}, value={self._value:g})"
+
+
+def as_tradeoff(tradeoff: Tradeoff | float) -> Tradeoff:
+    """A schedule as is; a number as a :class:`FixedTradeoff`."""
+    if isinstance(tradeoff, (int, float)) and not isinstance(tradeoff, bool):
+        return FixedTradeoff(tradeoff)
+    if isinstance(tradeoff, Tradeoff):
+        return tradeoff
+    raise TypeError(
+        f"tradeoff must be a number >= 0 or a schedule with value/update/state_dict/load_state_dict "
+        f"(FixedTradeoff, ExponentialTradeoff, AdaptiveTradeoff), got {tradeoff!r}"
+    )

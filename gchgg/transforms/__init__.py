@@ -1,0 +1,13 @@
+"""TensorDict transforms for goal-conditioned replay: HER relabelling, EBP episode energy, next-goal sharing."""
+
+from gchgg.transforms.energy import EpisodeEnergy, trajectory_energy
+from gchgg.transforms.her import DEFAULT_DROP_KEYS, GoalToNext, HerStrategy, HindsightRelabel
+
+__all__ = [
+    "DEFAULT_DROP_KEYS",
+    "EpisodeEnergy",
+    "GoalToNext",
+    "HerStrategy",
+    "HindsightRelabel",
+    "trajectory_energy",
+]

@@ -1,0 +1,339 @@
+"""Replay samplers in plain TorchRL buffers: EBP proportions, curriculum behaviour, exact neighbours, CHER, state."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
+
+from gchgg.graph import EuclideanMetric, GoalGraph
+from gchgg.samplers import (
+    AdaptiveTradeoff,
+    CherSampler,
+    EnergySampler,
+    ExponentialTradeoff,
+    FixedTradeoff,
+    GraphCurriculumSampler,
+    as_tradeoff,
+    nearest_neighbour_distances,
+)
+from gchgg.transforms import EpisodeEnergy, HindsightRelabel
+
+TARGET = (0.0, -0.5, 0.0)  # below the wall; goals above it are far in d_G
+
+
+@pytest.fixture(scope="module")
+def graph() -> GoalGraph:
+    """A 2 m × 2 m field with a wall from x = -1.0 to 0.4 along y = 0 (the GoalGraph docstring's example)."""
+    wall = ((-0.3, 0.0, 0.0), (0.7, 0.1, 0.2))
+    return GoalGraph(((0.0, 0.0, 0.0), (1.0, 1.0, 0.1)), [wall], n=(21, 21, 3), margin=0.0, cache_dir=None)
+
+
+def goal_transitions(num: int, seed: int = 0, energy: torch.Tensor | None = None) -> TensorDict:
+    """Transitions with goals spread over the field (z = 0) and one target below the wall."""
+    g = torch.Generator().manual_seed(seed)
+    goals = torch.rand(num, 3, generator=g) * 2 - 1
+    goals[:, 2] = 0.0
+    data = {"desired_goal": goals, "target_goal": torch.tensor(TARGET).expand(num, 3).clone(),
+            "observation": torch.randn(num, 4, generator=g)}
+    if energy is not None:
+        data["energy"] = energy
+    return TensorDict(data, [num])
+
+
+def make_buffer(sampler, data: TensorDict, size: int | None = None, seed: int = 0, batch: int = 64):
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(size or len(data)), sampler=sampler, batch_size=batch,
+                                    generator=torch.Generator().manual_seed(seed))
+    buffer.extend(data)
+    return buffer
+
+
+def mean_over_batches(buffer, fn, draws: int = 25) -> float:
+    return sum(fn(buffer.sample()) for _ in range(draws)) / draws
+
+
+# ----------------------------------------------------------------------------- EBP
+
+
+def test_ebp_draws_in_proportion_to_energy():
+    energies = torch.tensor([0.0, 1.0, 2.0, 5.0]).repeat_interleave(50)  # 4 episodes of 50 transitions
+    buffer = make_buffer(EnergySampler(), goal_transitions(200, energy=energies), batch=40_000)
+    episode = buffer.sample()["index"] // 50
+    counts = torch.bincount(episode, minlength=4).double()
+    assert counts[0] == 0  # no energy: never drawn
+    expected = torch.tensor([1.0, 2.0, 5.0], dtype=torch.float64) / 8 * counts.sum()
+    chi2 = ((counts[1:] - expected) ** 2 / expected).sum().item()
+    assert chi2 < 13.8, (counts, chi2)  # chi-square, 2 degrees of freedom, p = 0.001
+
+
+def test_ebp_uniform_without_energy_and_refreshed_after_writes():
+    buffer = make_buffer(EnergySampler(), goal_transitions(100, energy=torch.zeros(100)), size=300, batch=20_000)
+    counts = torch.bincount(buffer.sample()["index"], minlength=100).double()
+    assert counts.min() > 100 and counts.max() < 300  # uniform: 200 each
+    buffer.extend(goal_transitions(100, seed=1, energy=torch.ones(100)))  # rows 100..199 now hold all the energy
+    index = buffer.sample()["index"]
+    assert ((index >= 100) & (index < 200)).all()
+
+
+def test_ebp_rejects_negative_energy():
+    buffer = make_buffer(EnergySampler(), goal_transitions(10, energy=-torch.ones(10)))
+    with pytest.raises(ValueError, match="finite and >= 0"):
+        buffer.sample()
+
+
+# ----------------------------------------------------------------------------- curriculum
+
+
+def graph_distance(graph, batch) -> float:
+    return graph.distance(batch["desired_goal"], batch["target_goal"]).clamp(max=10).mean().item()
+
+
+def nn_distance(graph, batch) -> float:
+    nearest = nearest_neighbour_distances(batch["desired_goal"][None], graph, neighbours=None)
+    return nearest[torch.isfinite(nearest)].mean().item()
+
+
+def test_large_tradeoff_brings_goals_nearer_their_targets(graph):
+    data = goal_transitions(5000)
+    uniform = make_buffer(RandomSampler(), data)
+    curriculum = make_buffer(GraphCurriculumSampler(graph, num_candidates=8, tradeoff=1000.0), data)
+    d_uniform = mean_over_batches(uniform, lambda b: graph_distance(graph, b))
+    d_curriculum = mean_over_batches(curriculum, lambda b: graph_distance(graph, b))
+    assert d_curriculum < 0.95 * d_uniform, (d_curriculum, d_uniform)
+
+
+def test_zero_tradeoff_spreads_goals_out(graph):
+    data = goal_transitions(5000)
+    uniform = make_buffer(RandomSampler(), data)
+    curriculum = make_buffer(GraphCurriculumSampler(graph, num_candidates=8, tradeoff=0.0), data)
+    nn_uniform = mean_over_batches(uniform, lambda b: nn_distance(graph, b))
+    nn_curriculum = mean_over_batches(curriculum, lambda b: nn_distance(graph, b))
+    assert nn_curriculum > 1.02 * nn_uniform, (nn_curriculum, nn_uniform)
+
+
+def test_info_reports_the_chosen_candidate(graph):
+    sampler = GraphCurriculumSampler(graph, num_candidates=4, tradeoff=3.0, unreachable_distance=2.5)
+    batch = make_buffer(sampler, goal_transitions(500)).sample()
+    goals, targets = batch["desired_goal"], batch["target_goal"]
+    assert (batch["tradeoff"] == 3.0).all()
+    distance = graph.distance(goals, targets)
+    finite = torch.isfinite(distance)
+    assert not finite.all()  # some goals lie in the wall
+    expected = -torch.where(finite, distance, 2.5).sum()
+    assert batch["proximity"][0].item() == pytest.approx(expected.item(), rel=1e-3)
+    nearest = nearest_neighbour_distances(goals[None], graph, neighbours=None)
+    diversity = torch.where(torch.isfinite(nearest), nearest, 0.0).sum()
+    assert batch["diversity"][0].item() == pytest.approx(diversity.item(), rel=1e-4)
+
+
+def random_goals(k: int, b: int, seed: int) -> torch.Tensor:
+    """Goals on and off a graph: inside the wall, outside the field, duplicated, clustered by the wall."""
+    g = torch.Generator().manual_seed(seed)
+    goals = torch.rand(k, b, 3, generator=g) * 2 - 1
+    goals[..., 2] = 0.0
+    goals[:, : b // 8, 1] = (torch.rand(k, b // 8, generator=g) - 0.5) * 0.5  # near (and in) the wall
+    goals[:, -4:-2] = goals[:, :2]  # duplicates
+    goals[:, -1] = torch.tensor([3.0, 0.0, 0.0])  # outside the field
+    return goals
+
+
+@pytest.mark.parametrize("neighbours", [1, 2, 5])
+def test_shortlist_nearest_neighbours_are_exact(graph, neighbours):
+    for seed in range(3):
+        goals = random_goals(4, 64, seed)
+        for metric in (graph, EuclideanMetric()):
+            stats: dict = {}
+            fast = nearest_neighbour_distances(goals, metric, neighbours, stats=stats)
+            exact = nearest_neighbour_distances(goals, metric, None)
+            assert not torch.isnan(fast).any()
+            assert torch.equal(torch.isinf(fast), torch.isinf(exact))
+            finite = torch.isfinite(exact)
+            torch.testing.assert_close(fast[finite], exact[finite], rtol=0, atol=1e-6)
+        assert torch.isinf(fast[:, -1]).sum() == 0  # Euclidean: outside the field is still finite
+    assert stats["rescored"] < goals.shape[0] * goals.shape[1]
+
+
+def test_off_graph_goals_never_make_nan(graph):
+    data = goal_transitions(400)
+    data["desired_goal"][::3] = torch.tensor([0.0, 0.0, 0.0])  # inside the wall: inf to everything
+    sampler = GraphCurriculumSampler(graph, num_candidates=4, tradeoff=AdaptiveTradeoff(initial=5.0))
+    batch = make_buffer(sampler, data).sample()
+    for key in ("diversity", "proximity", "tradeoff"):
+        assert torch.isfinite(batch[key]).all(), key
+    nearest = nearest_neighbour_distances(data["desired_goal"][None, ::3][:, :50], graph)
+    assert torch.isinf(nearest).all()
+
+
+def test_curriculum_with_ebp_draws_only_energetic_rows(graph):
+    energy = (torch.arange(1000) >= 500).float()
+    sampler = GraphCurriculumSampler(graph, num_candidates=3, tradeoff=1.0, energy_key="energy")
+    index = make_buffer(sampler, goal_transitions(1000, energy=energy)).sample()["index"]
+    assert (index >= 500).all()
+
+
+# ----------------------------------------------------------------------------- CHER
+
+
+def test_cher_prefers_goals_near_targets_with_large_tradeoff():
+    data = goal_transitions(3000)
+    uniform = make_buffer(RandomSampler(), data)
+    cher = make_buffer(CherSampler(pool_size=500, tradeoff=50.0), data)
+    def to_target(batch) -> float:
+        return EuclideanMetric().distance(batch["desired_goal"], batch["target_goal"]).mean().item()
+
+    d_uniform = mean_over_batches(uniform, to_target, 5)
+    d_cher = mean_over_batches(cher, to_target, 5)
+    assert d_cher < 0.8 * d_uniform, (d_cher, d_uniform)
+
+
+def test_cher_similarity_graph_excludes_self_even_with_duplicates():
+    sampler = CherSampler(neighbours=1)
+    goals = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
+    neighbour, similarity = sampler._similarity_graph(goals)
+    assert neighbour[:, 0].tolist()[2:] == [1, 2] or neighbour[:, 0].tolist()[2:] == [0, 2]
+    assert neighbour[0, 0] == 1 and neighbour[1, 0] == 0  # the duplicate, not itself
+    d = torch.tensor([0.0, 0.0, 1.0, 2.0])
+    torch.testing.assert_close(similarity[:, 0], torch.exp(-d**2 / d.mean() ** 2))
+
+
+def test_cher_needs_a_large_enough_pool():
+    buffer = make_buffer(CherSampler(pool_size=50), goal_transitions(100))
+    with pytest.raises(ValueError, match="pool_size >= batch_size \\+ subset_size - 1 = 66"):
+        buffer.sample()
+
+
+# ----------------------------------------------------------------------------- TorchRL pipeline, state, seeds
+
+
+def samplers(graph):
+    return {
+        "ebp": lambda: EnergySampler("energy"),
+        "curriculum": lambda: GraphCurriculumSampler(graph, 4, AdaptiveTradeoff(), energy_key="energy"),
+        "cher": lambda: CherSampler(pool_size=300, tradeoff=ExponentialTradeoff()),
+    }
+
+
+def rollout(num: int, steps: int, seed: int) -> TensorDict:
+    g = torch.Generator().manual_seed(seed)
+    path = (torch.rand(num, 1, 3, generator=g) + torch.randn(num, steps + 1, 3, generator=g).cumsum(1) * 0.01)
+    return TensorDict(
+        {"observation": torch.randn(num, steps, 6, generator=g), "action": torch.rand(num, steps, 3, generator=g),
+         "achieved_goal": path[:, :-1], "desired_goal": torch.rand(num, 1, 3, generator=g).expand(num, steps, 3),
+         "next": {"observation": torch.randn(num, steps, 6, generator=g), "achieved_goal": path[:, 1:],
+                  "reward": -torch.ones(num, steps, 1), "done": torch.zeros(num, steps, 1, dtype=torch.bool)}},
+        [num, steps],
+    )
+
+
+@pytest.mark.parametrize("name", ["ebp", "curriculum", "cher"])
+def test_plain_torchrl_pipeline_before_full_and_after_wrapping(graph, name):
+    def reward(achieved, goal):
+        return torch.where((achieved - goal).norm(dim=-1) > 0.05, -1.0, 0.0)
+
+    her = HindsightRelabel(reward, k=4, generator=torch.Generator().manual_seed(0))
+    energy = EpisodeEnergy()
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(1000), sampler=samplers(graph)[name](),
+                                    batch_size=32, generator=torch.Generator().manual_seed(0))
+    buffer.extend(her(energy(rollout(4, 20, seed=0))))  # 400 rows: not full
+    batch = buffer.sample()
+    assert batch.batch_size == (32,) and (batch["index"] < 400).all()
+    for seed in (1, 2):
+        buffer.extend(her(energy(rollout(4, 20, seed=seed))))  # 1,200 rows written: wrapped
+    assert len(buffer) == 1000
+    batch = buffer.sample()
+    stored = buffer.storage[batch["index"]]
+    assert torch.equal(batch["desired_goal"], stored["desired_goal"])
+    assert torch.equal(batch["next", "reward"], stored["next", "reward"])
+
+
+@pytest.mark.parametrize("name", ["ebp", "curriculum", "cher"])
+def test_same_seed_same_indices(graph, name):
+    data = goal_transitions(2000, energy=torch.rand(2000, generator=torch.Generator().manual_seed(3)))
+    first = make_buffer(samplers(graph)[name](), data, seed=7)
+    second = make_buffer(samplers(graph)[name](), data, seed=7)
+    other = make_buffer(samplers(graph)[name](), data, seed=8)
+    a, b, c = (buffer.sample()["index"] for buffer in (first, second, other))
+    assert torch.equal(a, b) and not torch.equal(a, c)
+
+
+@pytest.mark.parametrize("name", ["ebp", "curriculum", "cher"])
+def test_state_round_trips(graph, name, tmp_path):
+    sampler = samplers(graph)[name]()
+    if hasattr(sampler, "tradeoff"):
+        sampler.tradeoff.update(distance=0.25)
+        sampler.tradeoff.update(distance=0.1)
+    state = sampler.state_dict()
+    fresh = samplers(graph)[name]()
+    fresh.load_state_dict(state)
+    assert fresh.state_dict() == state
+    sampler.dumps(tmp_path / name)
+    loaded = samplers(graph)[name]()
+    loaded.loads(tmp_path / name)
+    assert loaded.state_dict() == state
+    if hasattr(sampler, "tradeoff"):
+        assert loaded.tradeoff.value == sampler.tradeoff.value != 0.0
+    # through the buffer: the same generator state then draws the same indices
+    data = goal_transitions(1000, energy=torch.rand(1000, generator=torch.Generator().manual_seed(0)))
+    buffer = make_buffer(sampler, data, seed=5)
+    buffer.dumps(tmp_path / "buffer")
+    restored = make_buffer(samplers(graph)[name](), goal_transitions(10, energy=torch.ones(10)), size=1000)
+    restored.loads(tmp_path / "buffer")
+    assert restored.sampler.state_dict() == state
+    assert torch.equal(buffer.sample()["index"], restored.sample()["index"])
+
+
+def test_sampler_errors_name_the_problem(graph):
+    empty = TensorDictReplayBuffer(storage=LazyTensorStorage(10), sampler=EnergySampler(), batch_size=4)
+    with pytest.raises(RuntimeError, match="empty storage"):
+        empty.sample()
+    buffer = make_buffer(GraphCurriculumSampler(graph, target_key="goal_of_episode"), goal_transitions(100))
+    with pytest.raises(KeyError, match="'goal_of_episode'.*HindsightRelabel writes"):
+        buffer.sample()
+    episodes = TensorDictReplayBuffer(storage=LazyTensorStorage(10, ndim=2), sampler=GraphCurriculumSampler(graph),
+                                      batch_size=4)
+    episodes.extend(goal_transitions(20).view(2, 10))
+    with pytest.raises(ValueError, match="1-D storage"):
+        episodes.sample()
+    with pytest.raises(ValueError, match="num_candidates must be an integer >= 1, got 0"):
+        GraphCurriculumSampler(graph, num_candidates=0)
+    with pytest.raises(TypeError, match="distance"):
+        GraphCurriculumSampler(object())
+
+
+# ----------------------------------------------------------------------------- trade-off schedules
+
+
+def test_tradeoff_schedules():
+    adaptive = AdaptiveTradeoff(eta=1000.0, sigma=0.3)
+    assert adaptive.value == 0.0  # before the first update, as in the original code
+    assert adaptive.update(distance=0.0) == 1000.0
+    assert adaptive.update(distance=0.3) == pytest.approx(1000.0 * math.exp(-0.3 / 0.09))
+    assert adaptive.update(distance=math.inf) == 0.0
+    with pytest.raises(ValueError, match="needs distance"):
+        adaptive.update()
+    with pytest.raises(ValueError, match="sigma must be > 0.0, got 0"):
+        AdaptiveTradeoff(sigma=0)
+    exponential = ExponentialTradeoff(lambda_0=2.0, tau=0.1)
+    for _ in range(3):
+        exponential.update()
+    assert exponential.value == pytest.approx(2.0 * 1.1**3)  # eq. 4
+    restored = ExponentialTradeoff()
+    restored.load_state_dict(exponential.state_dict())
+    assert restored.value == exponential.value
+    assert as_tradeoff(0.5).value == 0.5 and isinstance(as_tradeoff(2), FixedTradeoff)
+    assert as_tradeoff(adaptive) is adaptive
+    with pytest.raises(TypeError, match="tradeoff must be"):
+        as_tradeoff("large")
+    with pytest.raises(ValueError, match="tradeoff must be >= 0.0"):
+        FixedTradeoff(-1.0)
+
+
+def test_sampler_reads_the_schedule_at_every_sample(graph):
+    schedule = AdaptiveTradeoff()
+    buffer = make_buffer(GraphCurriculumSampler(graph, 2, schedule), goal_transitions(300))
+    assert buffer.sample()["tradeoff"][0] == 0.0
+    schedule.update(distance=0.09)
+    assert buffer.sample()["tradeoff"][0].item() == pytest.approx(1000 * math.exp(-1.0))
