@@ -168,6 +168,17 @@ class KukaEnv(EnvBase):
 
     # -- access to the simulations -------------------------------------------------------------------
 
+    def random_state(self) -> list[tuple]:
+        """The N tasks' random states (goal and object draws), for checkpoints."""
+        return [task._random.get_state() for task in self._tasks]
+
+    def set_random_state(self, states: list[tuple]) -> None:
+        """Restore :meth:`random_state`'s output, so the next resets draw what they would have drawn."""
+        if len(states) != self.num_envs:
+            raise ValueError(f"random state holds {len(states)} tasks' states, this env has num_envs={self.num_envs}")
+        for task, state in zip(self._tasks, states):
+            task._random.set_state(state)
+
     @property
     def physics(self) -> list[kuka.Physics]:
         """The N dm_control ``Physics`` objects (e.g. ``env.physics[0].render(camera_id="front")``)."""

@@ -1,0 +1,167 @@
+"""DDPG update cost: :class:`gchgg.agent.DDPGAgent` vs the same update written in plain torch.
+
+Prints seconds per update (batch 256, push_new sizes: obs 25, goal 3, action 3) for the agent —
+which reads a TensorDict batch and runs TorchRL's modules and target updater — and for
+:class:`BareDDPG`, the same networks and the same math with plain tensors and no TensorDict, plus
+their ratio. The two are timed in alternating rounds of one run and the ratio is the median of the
+per-round ratios, so it holds on a shared machine. :class:`BareDDPG` is also the "bare DDPG update"
+of the training-iteration floor (``benchmarks/iteration.py`` may import it).
+
+    python benchmarks/agent_update.py [--threads 2] [--rounds 15] [--updates 40] [--batch-size 256]
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import os
+import statistics
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # run from a checkout
+
+os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
+
+import torch  # noqa: E402
+from tensordict import TensorDict  # noqa: E402
+from torch import nn  # noqa: E402
+
+from gchgg.agent import DDPGAgent  # noqa: E402
+
+
+def _mlp(in_features: int, out_features: int, hidden: int = 256, depth: int = 3) -> nn.Sequential:
+    layers, width = [], in_features
+    for _ in range(depth):
+        layers += [nn.Linear(width, hidden), nn.ReLU()]
+        width = hidden
+    return nn.Sequential(*layers, nn.Linear(width, out_features))
+
+
+class BareDDPG:
+    """The agent's update in plain torch: same networks, normalisation, targets, losses, Adam, polyak.
+
+    Args:
+        obs_dim, goal_dim, action_dim: sizes.
+        gamma, polyak, target_update_every, action_l2: as in :class:`gchgg.agent.DDPGAgent`.
+    """
+
+    def __init__(self, obs_dim: int, goal_dim: int, action_dim: int, gamma: float = 0.98, polyak: float = 0.95,
+                 target_update_every: int = 20, action_l2: float = 1.0) -> None:  # fmt: skip
+        in_features = obs_dim + goal_dim
+        self.actor = _mlp(in_features, action_dim)
+        self.critic = _mlp(in_features + action_dim, 1)
+        self.target_actor = copy.deepcopy(self.actor)
+        self.target_critic = copy.deepcopy(self.critic)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=1e-3, fused=True)  # as the agent
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=1e-3, fused=True)
+        self.loc = torch.zeros(in_features)
+        self.scale = torch.ones(in_features)
+        self.gamma, self.polyak, self.every, self.action_l2 = gamma, polyak, target_update_every, action_l2
+        self.num_updates = 0
+
+    def _norm(self, observation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        return ((torch.cat([observation, goal], -1) - self.loc) / self.scale).clamp(-5.0, 5.0)
+
+    def update(self, observation, goal, action, next_observation, reward) -> tuple[float, float]:
+        with torch.no_grad():
+            x_next = self._norm(next_observation, goal)
+            q_next = self.target_critic(torch.cat([x_next, self.target_actor(x_next).tanh()], -1))
+            target = reward + self.gamma * q_next.clamp(-1.0 / (1.0 - self.gamma), 0.0)
+        x = self._norm(observation, goal)
+        loss_value = (self.critic(torch.cat([x, action], -1)) - target).square().mean()
+        pi = self.actor(self._norm(observation, goal)).tanh()
+        for p in self.critic.parameters():
+            p.requires_grad_(False)
+        loss_actor = -self.critic(torch.cat([self._norm(observation, goal), pi], -1)).mean()
+        loss_actor = loss_actor + self.action_l2 * pi.square().mean()
+        for p in self.critic.parameters():
+            p.requires_grad_(True)
+        values = torch.stack([loss_actor.detach(), loss_value.detach()]).tolist()
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        (loss_actor + loss_value).backward()
+        self.actor_optimizer.step()
+        self.critic_optimizer.step()
+        self.num_updates += 1
+        if self.num_updates % self.every == 0:
+            with torch.no_grad():
+                for net, target_net in ((self.actor, self.target_actor), (self.critic, self.target_critic)):
+                    for p, p_target in zip(net.parameters(), target_net.parameters()):
+                        p_target.lerp_(p, 1.0 - self.polyak)
+        return values[0], values[1]
+
+
+def _batches(count: int, size: int, obs_dim: int, goal_dim: int, action_dim: int, generator: torch.Generator):
+    out = []
+    for _ in range(count):
+        out.append(
+            TensorDict(
+                {
+                    "observation": torch.randn(size, obs_dim, generator=generator),
+                    "desired_goal": torch.randn(size, goal_dim, generator=generator),
+                    "action": torch.rand(size, action_dim, generator=generator) * 2 - 1,
+                    "next": {
+                        "observation": torch.randn(size, obs_dim, generator=generator),
+                        "reward": -(torch.rand(size, 1, generator=generator) < 0.8).float(),
+                    },
+                },
+                [size],
+            )
+        )
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (default: torch's)")
+    parser.add_argument("--rounds", type=int, default=15, help="alternating timing rounds")
+    parser.add_argument("--updates", type=int, default=40, help="updates per round and implementation")
+    parser.add_argument("--batch-size", type=int, default=256)
+    args = parser.parse_args()
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    obs_dim, goal_dim, action_dim = 25, 3, 3
+    generator = torch.Generator().manual_seed(0)
+    batches = _batches(20, args.batch_size, obs_dim, goal_dim, action_dim, generator)
+    plain = [tuple(b.get(k) for k in ("observation", "desired_goal", "action", ("next", "observation"),
+                                      ("next", "reward"))) for b in batches]  # fmt: skip
+
+    torch.manual_seed(0)
+    agent = DDPGAgent(obs_dim, goal_dim, action_dim, generator=torch.Generator().manual_seed(0))
+    bare = BareDDPG(obs_dim, goal_dim, action_dim)
+    agent.update_normalizer(
+        torch.cat([b["observation"] for b in batches]), torch.cat([b["desired_goal"] for b in batches])
+    )
+
+    def run_agent(n: int) -> float:
+        start = time.perf_counter()
+        for i in range(n):
+            agent.update(batches[i % len(batches)])
+        return time.perf_counter() - start
+
+    def run_bare(n: int) -> float:
+        start = time.perf_counter()
+        for i in range(n):
+            bare.update(*plain[i % len(plain)])
+        return time.perf_counter() - start
+
+    run_agent(20), run_bare(20)  # warm-up
+    agent_times, bare_times, ratios = [], [], []
+    for r in range(args.rounds):
+        # alternate which goes first so that neither always follows the other
+        if r % 2:
+            t_bare, t_agent = run_bare(args.updates), run_agent(args.updates)
+        else:
+            t_agent, t_bare = run_agent(args.updates), run_bare(args.updates)
+        agent_times.append(t_agent / args.updates)
+        bare_times.append(t_bare / args.updates)
+        ratios.append(t_agent / t_bare)
+    print(f"threads={torch.get_num_threads()} batch={args.batch_size} rounds={args.rounds}x{args.updates} updates")
+    print(f"agent (TorchRL, TensorDict batch): {statistics.median(agent_times) * 1e3:.3f} ms/update")
+    print(f"bare plain-torch DDPG update:      {statistics.median(bare_times) * 1e3:.3f} ms/update")
+    print(f"ratio agent / bare (median of rounds): {statistics.median(ratios):.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,112 @@
+"""Seconds per training iteration on push_new for her, ghgg and gchgg, against the floor for the same work.
+
+An iteration is 50 episodes of 100 steps (one batched rollout), HER relabelling into the buffer and
+1,000 DDPG updates of 256 (plus goal generation for ghgg / gchgg); evaluation and checkpointing are
+timed apart (not included). The floor is the same work done bare, measured in the same run: 5,000
+raw dm_control ``Environment.step`` calls on one env and 1,000 plain-torch DDPG updates
+(``benchmarks/agent_update.py``'s ``BareDDPG``). Each algorithm first runs one untimed iteration
+(filling the buffer and the goal pool), then ``--iterations`` timed ones; the median is printed.
+
+    python benchmarks/iteration.py [--iterations 2] [--updates 1000] [--threads 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]  # run from a checkout
+os.environ.setdefault("MUJOCO_GL", "disable")
+os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from agent_update import BareDDPG  # noqa: E402
+from hydra import compose, initialize_config_dir  # noqa: E402
+
+import envs  # noqa: E402
+from gchgg.train import CONF_DIR, Trainer  # noqa: E402
+
+PHASES = ("goals", "rollout", "store", "update")  # what an iteration costs; eval and checkpoint apart
+
+
+def floor_seconds(episodes: int, steps: int, updates: int, batch_size: int) -> tuple[float, float]:
+    """Seconds of ``episodes * steps`` raw dm_control steps and of ``updates`` bare DDPG updates."""
+    env = envs.load("push_new", seed=0)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps, 3))
+    env.reset()
+    start = time.perf_counter()
+    for i in range(episodes * steps):
+        if i % steps == 0:
+            env.reset()
+        env.step(actions[i % steps])
+    env_seconds = time.perf_counter() - start
+
+    bare = BareDDPG(25, 3, 3)
+    g = torch.Generator().manual_seed(0)
+    batch = (
+        torch.randn(batch_size, 25, generator=g),
+        torch.randn(batch_size, 3, generator=g),
+        torch.rand(batch_size, 3, generator=g) * 2 - 1,
+        torch.randn(batch_size, 25, generator=g),
+        -(torch.rand(batch_size, 1, generator=g) < 0.8).float(),
+    )
+    bare.update(*batch)  # warm-up
+    start = time.perf_counter()
+    for _ in range(updates):
+        bare.update(*batch)
+    return env_seconds, time.perf_counter() - start
+
+
+def iteration_seconds(algo: str, iterations: int, updates: int, threads: int) -> tuple[float, dict[str, float]]:
+    """Median seconds per timed iteration of ``algo`` on push_new, and the median per phase."""
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(
+            "config",
+            overrides=[
+                "env=push_new",
+                f"algo={algo}",
+                f"train.updates={updates}",
+                "train.warmup_steps=0",  # the policy acts, as after warm-up
+                "eval.episodes=1",  # evaluation is not part of the timed work
+                f"threads={threads}",
+            ],
+        )
+    with tempfile.TemporaryDirectory() as run_dir:
+        trainer = Trainer(cfg, Path(run_dir))
+        trainer.iteration_step()  # untimed: fills the buffer and the goal pool
+        rows = [trainer.iteration_step() for _ in range(iterations)]
+    phases = {p: statistics.median(r[f"seconds_{p}"] for r in rows) for p in PHASES}
+    return statistics.median(sum(r[f"seconds_{p}"] for p in PHASES) for r in rows), phases
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--iterations", type=int, default=2, help="timed iterations per algorithm")
+    parser.add_argument("--updates", type=int, default=1000, help="DDPG updates per iteration")
+    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+
+    env_s, update_s = floor_seconds(50, 100, args.updates, 256)
+    floor = env_s + update_s
+    print(f"push_new, 50 episodes x 100 steps + {args.updates} updates of 256, threads={args.threads}")
+    print(f"floor: {floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare DDPG updates {update_s:.2f} s)")
+    seconds = {}
+    for algo in ("her", "ghgg", "gchgg"):
+        seconds[algo], phases = iteration_seconds(algo, args.iterations, args.updates, args.threads)
+        detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
+        print(f"{algo:6s} {seconds[algo]:6.2f} s/iteration  {seconds[algo] / floor:.2f}x floor  ({detail})")
+    print(f"her / floor = {seconds['her'] / floor:.2f} (target <= 1.3)")
+    print(f"gchgg / her = {seconds['gchgg'] / seconds['her']:.2f} (target <= 1.25; the paper: 179 s / 52 s = 3.4)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,781 @@
+"""Goal-conditioned DDPG (the HER / HGG learner) built from TorchRL parts.
+
+The agent follows the reference implementation's defaults (``REFERENCE.md``, "Training"):
+
+- actor ``π(s‖g)`` and critic ``Q(s‖g, a)``: 3 × 256 ReLU MLPs (:class:`torchrl.modules.MLP`), tanh on
+  the actor's output, Xavier-uniform weights and zero biases as in the original code;
+- observation and goal normalised *inside* both networks by running statistics (std floored at
+  1e-2, normalised values clipped to ±5). The target networks share the online networks'
+  statistics, so a relabelled goal is always normalised with the current statistics;
+- critic target ``y = r + γ·clip(Q'(s'‖g, π'(s'‖g)), −1/(1−γ), 0)`` with no done mask (the tasks only
+  time out), actor loss ``−mean Q(s‖g, π(s‖g)) + 1.0·mean(π²)``; both losses are computed from the
+  same parameters and both networks step together (Adam, 1e-3);
+- target networks ``θ' ← 0.95·θ' + 0.05·θ`` once every 20 updates (:class:`torchrl.objectives.SoftUpdate`);
+- exploration (eq. 22): with probability 0.3 a uniform random action, otherwise ``π + N(0, 0.2²)``,
+  clipped to [−1, 1]; every draw comes from a ``torch.Generator`` the caller passes in.
+
+:class:`HindsightDDPGLoss` is a :class:`torchrl.objectives.DDPGLoss` usable on its own in any TorchRL
+pipeline; :class:`DDPGAgent` adds the optimisers, the target-update schedule, exploration, the
+value function HGG needs and a complete ``state_dict``. Its :meth:`DDPGAgent.update` reads the
+batch's tensors once and runs the loss's tensor path, which costs about as much as the same update
+written in plain torch (``benchmarks/agent_update.py``).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import numbers
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.modules import MLP
+from torchrl.objectives import DDPGLoss, SoftUpdate
+
+__all__ = [
+    "DDPGAgent",
+    "GoalConditionedActor",
+    "GoalConditionedCritic",
+    "HindsightDDPGLoss",
+    "RunningNormalizer",
+    "make_ddpg_networks",
+]
+
+
+class RunningNormalizer(nn.Module):
+    """Running mean / standard deviation normaliser of a vector input.
+
+    Statistics are accumulated in float64 over everything passed to :meth:`update` (Chan et al.'s
+    parallel merge of count, mean and sum of squared deviations); :meth:`forward` computes
+    ``clip((x − mean) / max(std, std_min), −clip, clip)`` in float32. Before the first update the
+    normaliser is the identity (mean 0, std 1) up to the clip. All statistics are buffers updated in
+    place, so modules that share them (the target networks) see every update.
+
+    Args:
+        size: number of features (the last dimension of the input).
+        std_min: floor on the standard deviation (1e-2 in the reference).
+        clip: normalised values are clipped to ``[-clip, clip]`` (5 in the reference).
+
+    Examples:
+        >>> norm = RunningNormalizer(2)
+        >>> norm.update(torch.tensor([[0.0, 1.0], [2.0, 1.0]]))
+        >>> norm(torch.tensor([[2.0, 1.0], [100.0, 1.0]]))
+        tensor([[1., 0.],
+                [5., 0.]])
+    """
+
+    def __init__(self, size: int, std_min: float = 1e-2, clip: float = 5.0) -> None:
+        super().__init__()
+        _check_int("size", size, minimum=1)
+        _check_positive("std_min", std_min)
+        _check_positive("clip", clip)
+        self.size = int(size)
+        self.std_min = float(std_min)
+        self.clip = float(clip)
+        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("mean", torch.zeros(size, dtype=torch.float64))
+        self.register_buffer("m2", torch.zeros(size, dtype=torch.float64))
+        self.register_buffer("loc", torch.zeros(size))
+        self.register_buffer("scale", torch.ones(size))
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        """Add a batch ``x [..., size]`` to the statistics (in place).
+
+        Raises:
+            ValueError: ``x`` has the wrong last dimension or non-finite values.
+        """
+        if x.shape[-1:] != (self.size,):
+            raise ValueError(f"normaliser expects inputs [..., {self.size}], got shape {tuple(x.shape)}")
+        x = x.detach().reshape(-1, self.size).to(torch.float64)
+        if x.shape[0] == 0:
+            return
+        if not torch.isfinite(x).all():
+            raise ValueError("normaliser update got NaN or inf values; check the data handed to update_normalizer")
+        n_b = x.shape[0]
+        mean_b = x.mean(0)
+        m2_b = (x - mean_b).square().sum(0)
+        n_a = self.count.clone()
+        n = n_a + n_b
+        delta = mean_b - self.mean
+        self.mean.add_(delta * (n_b / n))
+        self.m2.add_(m2_b + delta.square() * (n_a * n_b / n))
+        self.count.copy_(n)
+        self.loc.copy_(self.mean)
+        self.scale.copy_((self.m2 / n).sqrt().clamp_min(self.std_min))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Normalise ``x [..., size]``: float32, clipped to ``[-clip, clip]``."""
+        return ((x - self.loc) / self.scale).clamp(-self.clip, self.clip)
+
+    def extra_repr(self) -> str:
+        return f"size={self.size}, std_min={self.std_min}, clip={self.clip}"
+
+
+def _mlp(in_features: int, out_features: int, hidden: Sequence[int], generator: torch.Generator | None) -> MLP:
+    """A ReLU :class:`~torchrl.modules.MLP` with Xavier-uniform weights and zero biases."""
+    net = MLP(
+        in_features=in_features,
+        out_features=out_features,
+        num_cells=list(hidden),
+        activation_class=nn.ReLU,
+    )
+    for layer in net.modules():
+        if isinstance(layer, nn.Linear):
+            nn.init.xavier_uniform_(layer.weight, generator=generator)
+            nn.init.zeros_(layer.bias)
+    return net
+
+
+class GoalConditionedActor(nn.Module):
+    """Deterministic policy ``π(s‖g) = tanh(MLP([norm(s), norm(g)]))`` with actions in [−1, 1].
+
+    Args:
+        observation_normalizer: normaliser of the observation (shared with the critic).
+        goal_normalizer: normaliser of the goal (shared with the critic).
+        action_dim: number of action dimensions.
+        hidden: widths of the hidden layers.
+        generator: draws the initial weights (``None``: torch's global generator).
+    """
+
+    def __init__(
+        self,
+        observation_normalizer: RunningNormalizer,
+        goal_normalizer: RunningNormalizer,
+        action_dim: int,
+        hidden: Sequence[int] = (256, 256, 256),
+        generator: torch.Generator | None = None,
+    ) -> None:
+        super().__init__()
+        self.observation_normalizer = observation_normalizer
+        self.goal_normalizer = goal_normalizer
+        in_features = observation_normalizer.size + goal_normalizer.size
+        self.mlp = _mlp(in_features, action_dim, hidden, generator)
+
+    def forward(self, observation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Action ``[..., action_dim]`` for ``observation [..., obs_dim]`` and ``goal [..., goal_dim]``."""
+        x = torch.cat([self.observation_normalizer(observation), self.goal_normalizer(goal)], -1)
+        return self.mlp(x).tanh()
+
+
+class GoalConditionedCritic(nn.Module):
+    """Action value ``Q(s‖g, a) = MLP([norm(s), norm(g), a])``; the action enters unnormalised.
+
+    Args:
+        observation_normalizer: normaliser of the observation (shared with the actor).
+        goal_normalizer: normaliser of the goal (shared with the actor).
+        action_dim: number of action dimensions.
+        hidden: widths of the hidden layers.
+        generator: draws the initial weights (``None``: torch's global generator).
+    """
+
+    def __init__(
+        self,
+        observation_normalizer: RunningNormalizer,
+        goal_normalizer: RunningNormalizer,
+        action_dim: int,
+        hidden: Sequence[int] = (256, 256, 256),
+        generator: torch.Generator | None = None,
+    ) -> None:
+        super().__init__()
+        self.observation_normalizer = observation_normalizer
+        self.goal_normalizer = goal_normalizer
+        in_features = observation_normalizer.size + goal_normalizer.size + action_dim
+        self.mlp = _mlp(in_features, 1, hidden, generator)
+
+    def forward(self, observation: torch.Tensor, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """``Q [..., 1]`` for ``observation [..., obs_dim]``, ``goal [..., goal_dim]``, ``action [..., A]``."""
+        x = torch.cat([self.observation_normalizer(observation), self.goal_normalizer(goal), action], -1)
+        return self.mlp(x)
+
+
+def make_ddpg_networks(
+    obs_dim: int,
+    goal_dim: int,
+    action_dim: int,
+    hidden: Sequence[int] = (256, 256, 256),
+    *,
+    norm_std_min: float = 1e-2,
+    norm_clip: float = 5.0,
+    observation_key: str = "observation",
+    goal_key: str = "desired_goal",
+    action_key: str = "action",
+    generator: torch.Generator | None = None,
+) -> tuple[TensorDictModule, TensorDictModule]:
+    """Build the actor and critic as :class:`~tensordict.nn.TensorDictModule` s sharing two normalisers.
+
+    Args:
+        obs_dim: observation size.
+        goal_dim: goal size.
+        action_dim: action size.
+        hidden: widths of the hidden layers of both MLPs.
+        norm_std_min: std floor of the normalisers.
+        norm_clip: clip of the normalised values.
+        observation_key: TensorDict key of the observation.
+        goal_key: TensorDict key of the goal.
+        action_key: TensorDict key of the action (written by the actor, read by the critic).
+        generator: draws the initial weights.
+
+    Returns:
+        ``(actor, critic)``: the actor reads ``[observation_key, goal_key]`` and writes
+        ``action_key``; the critic reads ``[observation_key, goal_key, action_key]`` and writes
+        ``"state_action_value"`` (``[..., 1]``), the key :class:`~torchrl.objectives.DDPGLoss` expects.
+
+    Examples:
+        >>> actor, critic = make_ddpg_networks(5, 3, 2, hidden=(16,))
+        >>> td = critic(actor(TensorDict({"observation": torch.zeros(4, 5), "desired_goal": torch.zeros(4, 3)}, [4])))
+        >>> td["action"].shape, td["state_action_value"].shape
+        (torch.Size([4, 2]), torch.Size([4, 1]))
+    """
+    for name, value in (("obs_dim", obs_dim), ("goal_dim", goal_dim), ("action_dim", action_dim)):
+        _check_int(name, value, minimum=1)
+    hidden = tuple(hidden)
+    if not hidden or not all(isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1 for h in hidden):
+        raise ValueError(f"hidden must be a non-empty sequence of positive layer widths, got {hidden!r}")
+    observation_normalizer = RunningNormalizer(obs_dim, norm_std_min, norm_clip)
+    goal_normalizer = RunningNormalizer(goal_dim, norm_std_min, norm_clip)
+    actor = GoalConditionedActor(observation_normalizer, goal_normalizer, action_dim, hidden, generator)
+    critic = GoalConditionedCritic(observation_normalizer, goal_normalizer, action_dim, hidden, generator)
+    return (
+        TensorDictModule(actor, in_keys=[observation_key, goal_key], out_keys=[action_key]),
+        TensorDictModule(critic, in_keys=[observation_key, goal_key, action_key], out_keys=["state_action_value"]),
+    )
+
+
+class HindsightDDPGLoss(DDPGLoss):
+    """:class:`~torchrl.objectives.DDPGLoss` with the HER / HGG critic target and an action penalty.
+
+    - critic: ``mean((Q(s‖g, a) − y)²)`` with ``y = r + γ·clip(Q'(s'‖g, π'(s'‖g)), −1/(1−γ), 0)``.
+      There is no done mask (goal-conditioned episodes only time out, so every next state is
+      bootstrapped) and the next state's goal is the transition's own goal (as written by the HER
+      relabel transform); no ``("next", goal)`` entry is read.
+    - actor: ``−mean Q(s‖g, π(s‖g)) + action_l2·mean(π²)``, with the critic's parameters detached.
+
+    Both the actor and the critic have target copies (``delay_actor=delay_value=True``), to be
+    updated with :class:`~torchrl.objectives.SoftUpdate`. Parameters without gradient (the
+    normalisers' statistics) are shared between the online and the target networks rather than
+    copied, so updating a normaliser updates all four networks.
+
+    Args:
+        actor_network: deterministic actor, e.g. from :func:`make_ddpg_networks`; its ``in_keys`` are
+            ``[observation_key, goal_key]`` and its single ``out_key`` the action.
+        value_network: critic reading ``[observation_key, goal_key, action_key]`` and writing
+            ``"state_action_value"``.
+
+    Keyword Args:
+        gamma: discount factor, in (0, 1).
+        action_l2: weight of ``mean(π²)`` in the actor loss (>= 0).
+        clip_return: clip the bootstrapped ``Q'`` to ``[−1/(1−γ), 0]`` (rewards in {−1, 0}).
+
+    The reward is read from ``("next", "reward")`` (``[B, 1]``), the next observation from
+    ``("next", observation_key)``. :meth:`forward` returns a TensorDict with ``loss_actor``,
+    ``loss_value``, ``pred_value`` and ``target_value`` (batch means); :meth:`losses` computes the same
+    from plain tensors.
+
+    Examples:
+        >>> actor, critic = make_ddpg_networks(5, 3, 2, hidden=(16,))
+        >>> loss = HindsightDDPGLoss(actor, critic)
+        >>> target_updater = SoftUpdate(loss, eps=0.95)  # target <- 0.95 target + 0.05 online
+        >>> batch = TensorDict({
+        ...     "observation": torch.randn(8, 5), "desired_goal": torch.randn(8, 3),
+        ...     "action": torch.rand(8, 2) * 2 - 1,
+        ...     "next": {"observation": torch.randn(8, 5), "reward": -torch.ones(8, 1)},
+        ... }, [8])
+        >>> out = loss(batch)
+        >>> (out["loss_actor"] + out["loss_value"]).backward()
+        >>> target_updater.step()
+        >>> sorted(out.keys())
+        ['loss_actor', 'loss_value', 'pred_value', 'target_value']
+    """
+
+    out_keys = ["loss_actor", "loss_value", "pred_value", "target_value"]
+
+    def __init__(
+        self,
+        actor_network: TensorDictModule,
+        value_network: TensorDictModule,
+        *,
+        gamma: float = 0.98,
+        action_l2: float = 1.0,
+        clip_return: bool = True,
+    ) -> None:
+        if not 0.0 < gamma < 1.0:
+            raise ValueError(f"gamma must be in (0, 1), got {gamma!r}")
+        if not action_l2 >= 0.0:
+            raise ValueError(f"action_l2 must be >= 0, got {action_l2!r}")
+        if len(actor_network.in_keys) != 2 or len(actor_network.out_keys) != 1:
+            raise ValueError(
+                "actor_network must read [observation_key, goal_key] and write one action key, got "
+                f"in_keys={actor_network.in_keys}, out_keys={actor_network.out_keys}"
+            )
+        super().__init__(actor_network, value_network, delay_actor=True, delay_value=True, loss_function="l2")
+        self.gamma = float(gamma)
+        self.action_l2 = float(action_l2)
+        self.clip_return = bool(clip_return)
+        self.observation_key, self.goal_key = actor_network.in_keys
+        self.action_key = actor_network.out_keys[0]
+        # Share (not copy) everything that has no gradient, i.e. the normalisers' statistics.
+        for source, target in (
+            (self.actor_network_params, self._modules["target_actor_network_params"]),
+            (self.value_network_params, self._modules["target_value_network_params"]),
+        ):
+            for key, value in source.items(include_nested=True, leaves_only=True):
+                if not isinstance(value, nn.Parameter):
+                    target.set(key, value.data)
+        self._bind_networks()
+
+    @property
+    def return_range(self) -> tuple[float, float]:
+        """``(−1/(1−γ), 0)``: the range of returns with rewards in {−1, 0}."""
+        return -1.0 / (1.0 - self.gamma), 0.0
+
+    def _bind_networks(self) -> None:
+        """Plain-module views of the online, target and detached networks, sharing the parameters.
+
+        The views are stateful copies of the networks whose tensors *are* the loss's parameter
+        tensors (target parameters, detached critic parameters), so calling them costs no parameter
+        swapping; optimiser steps, :class:`SoftUpdate` and ``load_state_dict`` all write in place.
+        """
+        views = {
+            "actor": self.actor_network.module,
+            "critic": self.value_network.module,
+            "target_actor": self._bound_copy(self.actor_network, self._modules["target_actor_network_params"]),
+            "target_critic": self._bound_copy(self.value_network, self._modules["target_value_network_params"]),
+            "detached_critic": self._bound_copy(self.value_network, self.value_network_params.detach()),
+        }
+        # kept out of ``_modules``: they hold no state of their own
+        self.__dict__["_views"] = views
+
+    @staticmethod
+    def _bound_copy(network: TensorDictModule, params: TensorDictBase) -> nn.Module:
+        view = copy.deepcopy(network)
+        params.to_module(view)
+        # to_module wraps the tensors in new Parameters sharing their storage; these views are never
+        # trained through, so their weights must not collect gradients
+        view.requires_grad_(False)
+        return view.module
+
+    def _apply(self, fn, *args, **kwargs):
+        out = super()._apply(fn, *args, **kwargs)
+        if "_views" in self.__dict__:  # tensors were moved or cast: bind the views again
+            self._bind_networks()
+        return out
+
+    @property
+    def actor(self) -> nn.Module:
+        """The online actor as a plain module: ``actor(observation, goal) -> action``."""
+        return self._views["actor"]
+
+    @property
+    def critic(self) -> nn.Module:
+        """The online critic as a plain module: ``critic(observation, goal, action) -> Q [..., 1]``."""
+        return self._views["critic"]
+
+    @property
+    def target_actor(self) -> nn.Module:
+        """The target actor; its weights are ``target_actor_network_params``."""
+        return self._views["target_actor"]
+
+    @property
+    def target_critic(self) -> nn.Module:
+        """The target critic; its weights are ``target_value_network_params``."""
+        return self._views["target_critic"]
+
+    def losses(
+        self,
+        observation: torch.Tensor,
+        goal: torch.Tensor,
+        action: torch.Tensor,
+        next_observation: torch.Tensor,
+        reward: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The two losses from plain tensors (the fast path; same values as :meth:`forward`).
+
+        Args:
+            observation: ``[B, obs_dim]``.
+            goal: ``[B, goal_dim]``, the goal of both ``s`` and ``s'``.
+            action: ``[B, A]``.
+            next_observation: ``[B, obs_dim]``.
+            reward: ``[B, 1]``.
+
+        Returns:
+            ``(loss_actor, loss_value, pred_value [B, 1], target_value [B, 1])``; the last two are
+            detached.
+        """
+        loss_value, pred_value, target_value = self._critic_loss(observation, goal, action, next_observation, reward)
+        return self._actor_loss(observation, goal), loss_value, pred_value, target_value
+
+    def _critic_loss(self, observation, goal, action, next_observation, reward):
+        views = self._views
+        with torch.no_grad():
+            next_action = views["target_actor"](next_observation, goal)
+            next_value = views["target_critic"](next_observation, goal, next_action)
+            if self.clip_return:
+                next_value = next_value.clamp(*self.return_range)
+            target_value = reward + self.gamma * next_value
+        pred_value = views["critic"](observation, goal, action)
+        if pred_value.shape != target_value.shape:
+            raise ValueError(
+                f"the reward must be [B, 1] like the critic's output {tuple(pred_value.shape)}, "
+                f"got {tuple(reward.shape)}"
+            )
+        loss_value = (pred_value - target_value).square().mean()
+        return loss_value, pred_value.detach(), target_value
+
+    def _actor_loss(self, observation, goal):
+        policy_action = self._views["actor"](observation, goal)
+        loss_actor = -self._views["detached_critic"](observation, goal, policy_action).mean()
+        if self.action_l2:
+            loss_actor = loss_actor + self.action_l2 * policy_action.square().mean()
+        return loss_actor
+
+    def _inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, ...]:
+        return (
+            tensordict.get(self.observation_key),
+            tensordict.get(self.goal_key),
+            tensordict.get(self.action_key),
+            tensordict.get(("next", self.observation_key)),
+            tensordict.get(("next", self.tensor_keys.reward)),
+        )
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        """Losses of a batch: ``loss_actor``, ``loss_value``, and the means of ``pred_value`` and ``target_value``."""
+        loss_actor, loss_value, pred_value, target_value = self.losses(*self._inputs(tensordict))
+        return TensorDict(
+            {
+                "loss_actor": loss_actor,
+                "loss_value": loss_value,
+                "pred_value": pred_value.mean(),
+                "target_value": target_value.mean(),
+            },
+            batch_size=[],
+        )
+
+    def loss_value(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
+        """Critic loss of a batch and ``{"pred_value", "target_value"}`` (``[B]`` each)."""
+        loss, pred_value, target_value = self._critic_loss(*self._inputs(tensordict))
+        return loss, {"pred_value": pred_value.squeeze(-1), "target_value": target_value.squeeze(-1)}
+
+    def loss_actor(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
+        """Actor loss of a batch (the critic's weights detached) and ``{}``."""
+        return self._actor_loss(tensordict.get(self.observation_key), tensordict.get(self.goal_key)), {}
+
+
+class DDPGAgent:
+    """Goal-conditioned DDPG with the reference hyperparameters: act, learn, value, checkpoint.
+
+    Args:
+        obs_dim: observation size.
+        goal_dim: goal size (3 for every task here).
+        action_dim: action size.
+        hidden: hidden-layer widths of the actor and of the critic.
+        actor_lr: Adam learning rate of the actor.
+        critic_lr: Adam learning rate of the critic.
+        gamma: discount factor, in (0, 1).
+        polyak: target networks move as ``θ' ← polyak·θ' + (1 − polyak)·θ``, in [0, 1].
+        target_update_every: the target networks move after every ``target_update_every``-th update.
+        action_l2: weight of ``mean(π²)`` in the actor loss.
+        clip_return: clip the bootstrapped ``Q'`` to ``[−1/(1−γ), 0]`` in the critic target.
+        random_eps: probability of a uniform random action when exploring.
+        noise_std: standard deviation of the Gaussian action noise when exploring.
+        norm_std_min: std floor of the observation / goal normalisers.
+        norm_clip: normalised observations and goals are clipped to ``±norm_clip``.
+        generator: draws the initial weights (``None``: torch's global generator).
+
+    The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
+    ``action [B, A]``, ``("next", "observation")`` and ``("next", "reward") [B, 1]``; other keys are
+    ignored (in particular ``done``: there is no done mask).
+
+    Examples:
+        >>> init = torch.Generator().manual_seed(0)
+        >>> agent = DDPGAgent(obs_dim=5, goal_dim=3, action_dim=2, hidden=(32,), generator=init)
+        >>> rng = torch.Generator().manual_seed(1)
+        >>> obs, goal = torch.randn(4, 5), torch.randn(4, 3)
+        >>> agent.update_normalizer(obs, goal)
+        >>> agent.act(obs, goal, explore=True, generator=rng).shape
+        torch.Size([4, 2])
+        >>> batch = TensorDict({
+        ...     "observation": obs, "desired_goal": goal, "action": agent.random_action(4, rng),
+        ...     "next": {"observation": obs + 0.1, "reward": -torch.ones(4, 1)},
+        ... }, [4])
+        >>> sorted(agent.update(batch))
+        ['loss_actor', 'loss_value', 'pred_value', 'target_value']
+        >>> agent.value(obs, goal).shape
+        torch.Size([4])
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        goal_dim: int,
+        action_dim: int,
+        *,
+        hidden: Sequence[int] = (256, 256, 256),
+        actor_lr: float = 1e-3,
+        critic_lr: float = 1e-3,
+        gamma: float = 0.98,
+        polyak: float = 0.95,
+        target_update_every: int = 20,
+        action_l2: float = 1.0,
+        clip_return: bool = True,
+        random_eps: float = 0.3,
+        noise_std: float = 0.2,
+        norm_std_min: float = 1e-2,
+        norm_clip: float = 5.0,
+        generator: torch.Generator | None = None,
+    ) -> None:
+        _check_positive("actor_lr", actor_lr)
+        _check_positive("critic_lr", critic_lr)
+        _check_unit_interval("polyak", polyak)
+        _check_int("target_update_every", target_update_every, minimum=1)
+        _check_unit_interval("random_eps", random_eps)
+        if not noise_std >= 0.0:
+            raise ValueError(f"noise_std must be >= 0, got {noise_std!r}")
+        self.obs_dim, self.goal_dim, self.action_dim = int(obs_dim), int(goal_dim), int(action_dim)
+        self.gamma = float(gamma)
+        self.polyak = float(polyak)
+        self.target_update_every = int(target_update_every)
+        self.random_eps = float(random_eps)
+        self.noise_std = float(noise_std)
+        self.hparams = dict(
+            obs_dim=obs_dim, goal_dim=goal_dim, action_dim=action_dim, hidden=tuple(hidden),
+            actor_lr=actor_lr, critic_lr=critic_lr, gamma=gamma, polyak=polyak,
+            target_update_every=target_update_every, action_l2=action_l2, clip_return=clip_return,
+            random_eps=random_eps, noise_std=noise_std, norm_std_min=norm_std_min, norm_clip=norm_clip,
+        )  # fmt: skip
+
+        actor, critic = make_ddpg_networks(
+            obs_dim, goal_dim, action_dim, hidden,
+            norm_std_min=norm_std_min, norm_clip=norm_clip, generator=generator,
+        )  # fmt: skip
+        self.loss_module = HindsightDDPGLoss(actor, critic, gamma=gamma, action_l2=action_l2, clip_return=clip_return)
+        self.target_updater = SoftUpdate(self.loss_module, eps=polyak)
+        # fused Adam: one kernel per step instead of several per parameter
+        actor_params = [p for p in self.loss_module.actor_network_params.values(True, True) if p.requires_grad]
+        critic_params = [p for p in self.loss_module.value_network_params.values(True, True) if p.requires_grad]
+        self.actor_optimizer = torch.optim.Adam(actor_params, lr=actor_lr, fused=True)
+        self.critic_optimizer = torch.optim.Adam(critic_params, lr=critic_lr, fused=True)
+        self.observation_normalizer: RunningNormalizer = self.loss_module.actor.observation_normalizer
+        self.goal_normalizer: RunningNormalizer = self.loss_module.actor.goal_normalizer
+        self.num_updates = 0
+
+    # -- acting ---------------------------------------------------------------------------------
+
+    @property
+    def actor(self) -> nn.Module:
+        """The online actor: ``actor(observation, goal) -> action`` (normalisation included)."""
+        return self.loss_module.actor
+
+    @property
+    def critic(self) -> nn.Module:
+        """The online critic: ``critic(observation, goal, action) -> Q [..., 1]``."""
+        return self.loss_module.critic
+
+    @torch.no_grad()
+    def act(
+        self,
+        observation: torch.Tensor,
+        goal: torch.Tensor,
+        explore: bool = False,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Actions for a batch of observations and goals.
+
+        Args:
+            observation: ``[N, obs_dim]`` (any leading shape).
+            goal: ``[N, goal_dim]``, same leading shape.
+            explore: ``False``: the deterministic ``π(s‖g)``. ``True``: eq. 22 — per row, with
+                probability ``random_eps`` a uniform action, otherwise ``π + N(0, noise_std²)``,
+                clipped to [−1, 1].
+            generator: the source of the exploration draws; required when ``explore``. Each call
+                draws a fixed amount from it (N uniforms, then N·A uniforms, then N·A normals).
+
+        Returns:
+            float32 ``[N, action_dim]`` in [−1, 1].
+        """
+        self._check_inputs(observation, goal)
+        action = self.actor(observation, goal)
+        if not explore:
+            return action
+        if generator is None:
+            raise ValueError("act(explore=True) needs a torch.Generator: pass generator=...")
+        lead = action.shape[:-1]
+        take_random = torch.rand(lead, generator=generator, device=action.device) < self.random_eps
+        random_action = self.random_action(lead, generator)
+        noise = torch.randn(action.shape, generator=generator, device=action.device).mul_(self.noise_std)
+        action = action.add_(noise).clamp_(-1.0, 1.0)
+        return torch.where(take_random.unsqueeze(-1), random_action, action)
+
+    def random_action(self, batch_size: int | Sequence[int], generator: torch.Generator) -> torch.Tensor:
+        """Uniform random actions ``[*batch_size, action_dim]`` in [−1, 1) (warm-up, ε-exploration)."""
+        lead = (batch_size,) if isinstance(batch_size, numbers.Integral) else tuple(batch_size)
+        return torch.rand((*lead, self.action_dim), generator=generator).mul_(2.0).sub_(1.0)
+
+    def policy(
+        self, explore: bool = False, *, random: bool = False, generator: torch.Generator | None = None
+    ) -> TensorDictModule:
+        """A TorchRL policy for ``env.rollout``: reads ``observation`` and ``desired_goal``, writes ``action``.
+
+        Args:
+            explore: act with eq. 22's exploration (see :meth:`act`).
+            random: ignore the actor and act uniformly at random (the warm-up).
+            generator: the source of the random draws; required when ``explore`` or ``random``.
+
+        Returns:
+            a :class:`~tensordict.nn.TensorDictModule` calling :meth:`act` (or :meth:`random_action`).
+        """
+        if (explore or random) and generator is None:
+            raise ValueError("policy(explore=True) and policy(random=True) need a torch.Generator: pass generator=...")
+        return TensorDictModule(
+            _AgentPolicy(self, explore=explore, random=random, generator=generator),
+            in_keys=["observation", "desired_goal"],
+            out_keys=["action"],
+        )
+
+    @torch.inference_mode()
+    def _value(self, observation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        value = self.critic(observation, goal, self.actor(observation, goal)).squeeze(-1)
+        return value.clamp_(*self.loss_module.return_range)
+
+    def value(self, observation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """``V(s‖g) = Q(s‖g, π(s‖g))`` clipped to ``[−1/(1−γ), 0]``, computed under inference mode.
+
+        Args:
+            observation: ``[B, obs_dim]``.
+            goal: ``[B, goal_dim]``.
+
+        Returns:
+            float32 ``[B]`` (an ordinary tensor: it may be modified in place).
+        """
+        self._check_inputs(observation, goal)
+        return self._value(observation, goal).clone()
+
+    # -- learning -------------------------------------------------------------------------------
+
+    def update_normalizer(self, observation: torch.Tensor, goal: torch.Tensor) -> None:
+        """Add data to the running statistics of the networks' input normalisers.
+
+        Args:
+            observation: observations ``[..., obs_dim]`` (e.g. a rollout's, ``[N, T, obs_dim]``).
+            goal: goals ``[..., goal_dim]`` (e.g. the relabelled goals); its leading shape may differ.
+        """
+        self.observation_normalizer.update(observation)
+        self.goal_normalizer.update(goal)
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One gradient step of the actor and the critic on ``batch``; the target networks move every
+        ``target_update_every``-th call.
+
+        Args:
+            batch: ``[B]`` TensorDict with ``observation``, ``desired_goal``, ``action``,
+                ``("next", "observation")`` and ``("next", "reward")`` (``[B, 1]``).
+
+        Returns:
+            ``{"loss_actor", "loss_value", "pred_value", "target_value"}`` as floats (the last two
+            are batch means of ``Q(s‖g, a)`` and of the critic target).
+
+        Raises:
+            FloatingPointError: a loss is NaN or inf; no parameter is changed.
+        """
+        loss = self.loss_module
+        loss_actor, loss_value, pred_value, target_value = loss.losses(*loss._inputs(batch))
+        values = torch.stack([loss_actor.detach(), loss_value.detach(), pred_value.mean(), target_value.mean()])
+        values = values.tolist()
+        if not all(math.isfinite(v) for v in values[:2]):
+            raise FloatingPointError(
+                f"DDPG update {self.num_updates + 1}: loss_actor={values[0]}, loss_value={values[1]} is not "
+                "finite; check the batch for NaN/inf (observations, goals, rewards) and the learning rates"
+            )
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        # the actor loss sees the critic's weights detached and the critic loss does not involve
+        # the online actor: one backward gives each network its own gradient
+        (loss_actor + loss_value).backward()
+        self.actor_optimizer.step()
+        self.critic_optimizer.step()
+        self.num_updates += 1
+        if self.num_updates % self.target_update_every == 0:
+            self.target_updater.step()
+        return dict(zip(("loss_actor", "loss_value", "pred_value", "target_value"), values))
+
+    # -- checkpointing --------------------------------------------------------------------------
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything an exact resume needs: networks, target networks, normalisers, optimisers and
+        the update counter. Like :meth:`torch.nn.Module.state_dict`, tensors are references: copy
+        (or ``torch.save``) before training on."""
+        return {
+            "hparams": dict(self.hparams),
+            "networks": self.loss_module.state_dict(),
+            "actor_optimizer": self.actor_optimizer.state_dict(),
+            "critic_optimizer": self.critic_optimizer.state_dict(),
+            "num_updates": self.num_updates,
+        }
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """Restore a :meth:`state_dict` (in place).
+
+        Raises:
+            KeyError: an entry is missing.
+            ValueError: the state was saved by an agent with different sizes or hyperparameters.
+        """
+        missing = {"hparams", "networks", "actor_optimizer", "critic_optimizer", "num_updates"} - set(state_dict)
+        if missing:
+            raise KeyError(f"agent state_dict is missing {sorted(missing)}; was it written by DDPGAgent.state_dict()?")
+        saved = dict(state_dict["hparams"])
+        saved["hidden"] = tuple(saved["hidden"])
+        differing = {k: (saved.get(k), v) for k, v in self.hparams.items() if saved.get(k) != v}
+        if differing:
+            details = ", ".join(f"{k}: saved {s!r}, this agent {c!r}" for k, (s, c) in differing.items())
+            raise ValueError(f"agent state_dict was saved with different settings ({details})")
+        self.loss_module.load_state_dict(state_dict["networks"])
+        self.actor_optimizer.load_state_dict(state_dict["actor_optimizer"])
+        self.critic_optimizer.load_state_dict(state_dict["critic_optimizer"])
+        self.num_updates = int(state_dict["num_updates"])
+
+    # -- helpers --------------------------------------------------------------------------------
+
+    def _check_inputs(self, observation: torch.Tensor, goal: torch.Tensor) -> None:
+        if observation.shape[-1:] != (self.obs_dim,) or goal.shape[-1:] != (self.goal_dim,):
+            raise ValueError(
+                f"expected observation [..., {self.obs_dim}] and goal [..., {self.goal_dim}], "
+                f"got {tuple(observation.shape)} and {tuple(goal.shape)}"
+            )
+        if observation.shape[:-1] != goal.shape[:-1]:
+            raise ValueError(
+                f"observation and goal must share their leading shape, got {tuple(observation.shape)} "
+                f"and {tuple(goal.shape)}"
+            )
+
+
+class _AgentPolicy(nn.Module):
+    """``(observation, goal) -> action`` through :meth:`DDPGAgent.act` (or random), for TensorDictModule."""
+
+    def __init__(self, agent: DDPGAgent, explore: bool, random: bool, generator: torch.Generator | None) -> None:
+        super().__init__()
+        self.__dict__["agent"] = agent  # not a submodule: the agent owns its networks
+        self.explore, self.random, self.generator = explore, random, generator
+
+    def forward(self, observation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        if self.random:
+            return self.agent.random_action(observation.shape[:-1], self.generator)
+        return self.agent.act(observation, goal, explore=self.explore, generator=self.generator)
+
+
+def _check_int(name: str, value: Any, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+def _check_positive(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not value > 0:
+        raise ValueError(f"{name} must be a number > 0, got {value!r}")
+
+
+def _check_unit_interval(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0.0 <= value <= 1.0:
+        raise ValueError(f"{name} must be in [0, 1], got {value!r}")

@@ -1,0 +1,159 @@
+"""Builders of the training pipeline's parts from explicit arguments (no Hydra config is passed in).
+
+Each ``make_*`` function turns a few plain settings into one part — the goal metric, the trade-off
+schedule, the replay buffer with its sampler, the HER transform, the goal generator — and checks
+them first, so that a bad setting fails before training with a message naming it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import torch
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.envs.transforms import Compose
+
+from gchgg.graph import USER_CACHE_DIR, EuclideanMetric, GoalGraph, check_density_criterion
+from gchgg.hgg import HGGGoalGenerator, TrajectoryPool
+from gchgg.samplers import (
+    AdaptiveTradeoff,
+    CherSampler,
+    EnergySampler,
+    ExponentialTradeoff,
+    FixedTradeoff,
+    GraphCurriculumSampler,
+)
+from gchgg.transforms import EpisodeEnergy, GoalToNext, HindsightRelabel
+
+METRICS = ("euclidean", "graph")
+SAMPLERS = ("uniform", "ebp", "curriculum", "cher")
+TRADEOFFS = ("adaptive", "exponential", "fixed")
+GOAL_GENERATORS = ("none", "hgg")
+
+
+def check_choice(setting: str, value, allowed: Sequence[str]) -> str:
+    """``value`` if it is one of ``allowed``, else a ``ValueError`` naming the setting and the choices."""
+    if value not in allowed:
+        raise ValueError(f"{setting} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
+    return value
+
+
+def check_positive(setting: str, value, *, integer: bool = False, allow_zero: bool = False):
+    """``value`` if it is a finite number > 0 (>= 0 with ``allow_zero``), else a ``ValueError``."""
+    ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
+    if isinstance(value, bool) or not ok_type or not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        kind = "an integer" if integer else "a number"
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{setting} must be {kind} {bound}, got {value!r}")
+    return value
+
+
+def make_metric(
+    kind: str,
+    field=None,
+    obstacles=(),
+    *,
+    n: Sequence[int] = (31, 31, 11),
+    margin: float = 0.02,
+    snap: str = "nearest",
+    cache_dir: str | Path | None = None,
+):
+    """The goal metric: ``EuclideanMetric()`` or a ``GoalGraph`` over ``field`` with ``obstacles``.
+
+    Args:
+        kind: ``"euclidean"`` or ``"graph"``.
+        field, obstacles: boxes ``(centre, half-sizes)`` in metres (only for ``"graph"``).
+        n, margin, snap: lattice size, safety margin and goal-to-vertex rule of the graph.
+        cache_dir: folder of the distance-table cache; ``None`` uses the per-user default.
+    """
+    check_choice("metric", kind, METRICS)
+    if kind == "euclidean":
+        return EuclideanMetric()
+    check_density_criterion(field, obstacles, n, margin)  # eq. 12, before the (long) build
+    return GoalGraph(field, obstacles, n, margin, snap=snap, cache_dir=USER_CACHE_DIR if cache_dir is None else cache_dir)
+
+
+def make_tradeoff(kind: str, *, eta: float = 1000.0, sigma: float = 0.3, lambda_0: float = 1.0, tau: float = 0.005, value: float = 1.0):
+    """The λ schedule: adaptive (eq. 20), exponential (eq. 4) or fixed."""
+    check_choice("tradeoff", kind, TRADEOFFS)
+    if kind == "adaptive":
+        return AdaptiveTradeoff(eta=eta, sigma=sigma)
+    if kind == "exponential":
+        return ExponentialTradeoff(lambda_0=lambda_0, tau=tau)
+    return FixedTradeoff(value)
+
+
+def make_sampler(kind: str, metric, tradeoff, *, num_candidates: int = 8, cher_pool_size: int = 5000):
+    """The replay sampler: uniform, EBP, graph curriculum (Alg. 1, candidates drawn with EBP) or CHER."""
+    check_choice("sampler", kind, SAMPLERS)
+    if kind == "uniform":
+        return None  # TorchRL's RandomSampler
+    if kind == "ebp":
+        return EnergySampler("energy")
+    if kind == "curriculum":
+        check_positive("num_candidates", num_candidates, integer=True)
+        return GraphCurriculumSampler(metric, num_candidates, tradeoff, energy_key="energy")
+    check_positive("cher_pool_size", cher_pool_size, integer=True)
+    return CherSampler(metric, pool_size=cher_pool_size, tradeoff=tradeoff)
+
+
+def make_replay_buffer(
+    capacity_episodes: int,
+    transitions_per_episode: int,
+    sampler,
+    *,
+    batch_size: int,
+    generator: torch.Generator,
+) -> TensorDictReplayBuffer:
+    """An episodic FIFO of relabelled transitions: ``capacity_episodes`` whole episodes.
+
+    Every episode occupies ``transitions_per_episode`` = (k+1)·T consecutive rows, so the FIFO
+    drops whole episodes. Sampled batches get ``("next", "desired_goal")`` back (:class:`GoalToNext`).
+    """
+    check_positive("buffer.episodes", capacity_episodes, integer=True)
+    check_positive("train.batch_size", batch_size, integer=True)
+    kwargs = {} if sampler is None else {"sampler": sampler}
+    return TensorDictReplayBuffer(
+        storage=LazyTensorStorage(capacity_episodes * transitions_per_episode),
+        batch_size=batch_size,
+        transform=GoalToNext(),
+        generator=generator,
+        **kwargs,
+    )
+
+
+def make_relabel(reward_fn: Callable, *, k: int, strategy: str, generator: torch.Generator) -> Compose:
+    """EBP energy of each episode, then HER relabelling into (k+1)·T transitions per episode."""
+    check_positive("her.k", k, integer=True, allow_zero=True)
+    return Compose(EpisodeEnergy(), HindsightRelabel(reward_fn, k, strategy, generator=generator))
+
+
+def make_goal_generator(
+    kind: str,
+    metric,
+    *,
+    max_dis: float,
+    gamma: float,
+    stop_threshold: float | None,
+    success_threshold: float,
+    pool_size: int = 1000,
+    c: float = 3.0,
+    L: float = 5.0,
+) -> HGGGoalGenerator | None:
+    """``None`` (episodes go to the target goals) or an HGG goal generator with its trajectory pool."""
+    check_choice("goal_generator", kind, GOAL_GENERATORS)
+    if kind == "none":
+        return None
+    check_positive("hgg.pool_size", pool_size, integer=True)
+    return HGGGoalGenerator(
+        metric,
+        max_dis=max_dis,
+        pool=TrajectoryPool(pool_size),
+        c=c,
+        L=L,
+        gamma=gamma,
+        stop_threshold=stop_threshold,
+        success_threshold=success_threshold,
+    )

@@ -1,0 +1,42 @@
+"""Batched episodes: collect one episode per simulation of a batched env, and evaluate a policy on target goals."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.envs import EnvBase
+
+ActFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+def collect(env: EnvBase, act: ActFn, steps: int, start: TensorDictBase) -> TensorDictBase:
+    """One whole episode in every simulation of ``env``, from the reset TensorDict ``start``.
+
+    Args:
+        env: a batched env (``batch_size=[N]``) whose observation keys include ``observation`` and
+            ``desired_goal``.
+        act: ``act(observation [N, obs_dim], goal [N, 3]) -> action [N, A]``, called once per step
+            for all N simulations.
+        steps: episode length T.
+        start: the TensorDict returned by ``env.reset(...)``.
+
+    Returns:
+        The rollout TensorDict ``[N, T]`` (time last), with ``action`` and the ``next`` entries.
+    """
+
+    def policy(td: TensorDictBase) -> TensorDictBase:
+        return td.set("action", act(td.get("observation"), td.get("desired_goal")))
+
+    return env.rollout(steps, policy, tensordict=start, auto_reset=False, break_when_any_done=False)
+
+
+def evaluate(env: EnvBase, act: ActFn, steps: int) -> float:
+    """Success rate of ``act`` over one episode per simulation of ``env``, on the task's own goals.
+
+    Success is ``is_success`` at the last step (the original evaluation).
+    """
+    with torch.inference_mode():
+        rollout = collect(env, act, steps, env.reset())
+    return rollout["next", "is_success"][:, -1].float().mean().item()

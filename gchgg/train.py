@@ -1,0 +1,347 @@
+"""`python -m gchgg.train env=<task> algo=<method>`: the Hydra app that wires the parts into Algorithm 2.
+
+One iteration, top to bottom (``Trainer.iteration``):
+
+1. target tasks T* from a reset of the batched env (one per episode);
+2. intermediate goals from the HGG goal generator (eqs. 6-7), or the targets themselves (HER, CHER);
+   λ updated from D_G (eq. 20) or stepped (eq. 4);
+3. one batched rollout of all episodes (uniform random actions during warm-up, else eq. 22);
+4. the trajectory pool, the normalisers, EBP energy + HER relabelling, the replay buffer;
+5. ``train.updates`` DDPG updates on batches from the buffer's sampler (EBP, Alg. 1 or CHER);
+6. evaluation on target goals, a ``metrics.csv`` row, an atomic checkpoint.
+
+All algorithm logic lives in the parts (``envs``, ``gchgg.graph``, ``gchgg.hgg``, ``gchgg.samplers``,
+``gchgg.transforms``, ``gchgg.agent``); this module only builds them from the config and calls them.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import time
+from functools import partial
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
+
+import hydra  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from hydra.core.hydra_config import HydraConfig  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
+from tqdm.auto import tqdm  # noqa: E402
+
+import envs  # noqa: E402
+from gchgg import checkpoint  # noqa: E402
+from gchgg.agent import DDPGAgent  # noqa: E402
+from gchgg.builders import (  # noqa: E402
+    check_positive,
+    make_goal_generator,
+    make_metric,
+    make_relabel,
+    make_replay_buffer,
+    make_sampler,
+    make_tradeoff,
+)
+from gchgg.hgg import estimate_max_distance  # noqa: E402
+from gchgg.rollout import collect, evaluate  # noqa: E402
+from gchgg.samplers import GraphCurriculumSampler  # noqa: E402
+
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
+CHECKPOINT = "checkpoint.pt"
+METRICS = "metrics.csv"
+MAX_DIS_RESETS = 1000  # resets over which HGG's max_dis (largest initial-to-target distance) is taken
+
+
+def check_config(cfg: DictConfig) -> None:
+    """Fail before training, naming the setting, on sizes, rates and fractions out of range."""
+    for setting in ("train.iterations", "train.episodes", "train.batch_size", "eval.episodes", "buffer.episodes"):
+        check_positive(setting, OmegaConf.select(cfg, setting), integer=True)
+    for setting in ("train.updates", "train.warmup_steps", "her.k", "threads"):
+        check_positive(setting, OmegaConf.select(cfg, setting), integer=True, allow_zero=True)
+    for setting in ("agent.actor_lr", "agent.critic_lr", "env.threshold", "agent.target_update_every"):
+        check_positive(setting, OmegaConf.select(cfg, setting))
+    for setting in ("agent.gamma", "agent.polyak", "agent.random_eps"):
+        value = OmegaConf.select(cfg, setting)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
+            raise ValueError(f"{setting} must be a number in [0, 1], got {value!r}")
+    check_positive("agent.noise_std", cfg.agent.noise_std, allow_zero=True)
+    check_positive("agent.action_l2", cfg.agent.action_l2, allow_zero=True)
+    if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
+        raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {cfg.train.episodes}")
+
+
+class Trainer:
+    """The state of one training run and the loop of Algorithm 2 over it.
+
+    Args:
+        cfg: the composed Hydra config (read here, and only here, into explicit builder arguments).
+        run_dir: folder of ``metrics.csv``, ``checkpoint.pt`` and the saved config.
+    """
+
+    def __init__(self, cfg: DictConfig, run_dir: Path) -> None:
+        check_config(cfg)
+        self.cfg = cfg
+        self.run_dir = run_dir
+        if cfg.threads:
+            torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        seeds = np.random.SeedSequence(cfg.seed).generate_state(5)
+        self.explore_rng = torch.Generator().manual_seed(int(seeds[0]))
+        her_rng = torch.Generator().manual_seed(int(seeds[1]))
+        buffer_rng = torch.Generator().manual_seed(int(seeds[2]))
+
+        name = cfg.env.name
+        self.geometry = envs.geometry(name)
+        self.steps = self.geometry.episode_length
+        self.env = envs.make(name, num_envs=cfg.train.episodes, seed=cfg.seed, threshold=cfg.env.threshold)
+        self.eval_env = envs.make(name, num_envs=cfg.eval.episodes, seed=int(seeds[3]), threshold=cfg.env.threshold)
+
+        algo = cfg.algo
+        self.metric = make_metric(
+            algo.metric,
+            self.geometry.field,
+            self.geometry.obstacles,
+            n=tuple(cfg.graph.n),
+            margin=cfg.graph.margin,
+            snap=cfg.graph.snap,
+            cache_dir=cfg.graph.cache_dir,
+        )
+        self.tradeoff = make_tradeoff(cfg.tradeoff.name, **{k: v for k, v in cfg.tradeoff.items() if k != "name"})
+        self.sampler = make_sampler(
+            algo.sampler, self.metric, self.tradeoff, num_candidates=cfg.curriculum.num_candidates, cher_pool_size=cfg.cher.pool_size
+        )
+        copies = cfg.her.k + 1
+        self.buffer = make_replay_buffer(
+            cfg.buffer.episodes, copies * self.steps, self.sampler, batch_size=cfg.train.batch_size, generator=buffer_rng
+        )
+        self.relabel = make_relabel(
+            partial(envs.reward, threshold=cfg.env.threshold), k=cfg.her.k, strategy=cfg.her.strategy, generator=her_rng
+        )
+        self.agent = DDPGAgent(
+            self.env.obs_dim,
+            3,
+            self.env.action_dim,
+            hidden=tuple(cfg.agent.hidden),
+            actor_lr=cfg.agent.actor_lr,
+            critic_lr=cfg.agent.critic_lr,
+            gamma=cfg.agent.gamma,
+            polyak=cfg.agent.polyak,
+            target_update_every=cfg.agent.target_update_every,
+            action_l2=cfg.agent.action_l2,
+            random_eps=cfg.agent.random_eps,
+            noise_std=cfg.agent.noise_std,
+            generator=torch.Generator().manual_seed(int(seeds[4])),
+        )
+        self.goal_generator = None
+        if algo.goal_generator != "none":
+            self.goal_generator = make_goal_generator(
+                algo.goal_generator,
+                self.metric,
+                max_dis=self._max_distance(),
+                gamma=cfg.agent.gamma,
+                stop_threshold=cfg.env.stop_threshold,
+                success_threshold=cfg.env.threshold,
+                pool_size=cfg.hgg.pool_size,
+                c=cfg.hgg.c,
+                L=cfg.hgg.L,
+            )
+        self.iteration = 0
+        self.env_steps = 0
+        self.history: list[dict[str, float]] = []
+
+    def _max_distance(self) -> float:
+        """HGG's max_dis: the largest metric distance from initial achieved goal to target over resets."""
+        starts, targets = [], []
+        for _ in range(math.ceil(MAX_DIS_RESETS / self.eval_env.num_envs)):
+            td = self.eval_env.reset()
+            starts.append(td["achieved_goal"])
+            targets.append(td["desired_goal"])
+        return estimate_max_distance(self.metric, torch.cat(starts), torch.cat(targets))
+
+    # -- one iteration ----------------------------------------------------------------------------
+
+    def iteration_step(self) -> dict[str, float]:
+        """Runs one iteration of Algorithm 2 and returns its metrics row."""
+        cfg, row, clock = self.cfg, {"iteration": self.iteration}, time.perf_counter()
+
+        def lap(phase: str) -> None:
+            nonlocal clock
+            now = time.perf_counter()
+            row[f"seconds_{phase}"] = now - clock
+            clock = now
+
+        # 1-2. Target tasks, intermediate goals, trade-off.
+        start = self.env.reset()
+        d_g, from_pool = 0.0, False
+        if self.goal_generator is not None:
+            generation = self.goal_generator.generate(start["achieved_goal"], start["desired_goal"], self.agent.value)
+            d_g, from_pool = generation.d_g, generation.from_pool
+            if from_pool:
+                reset = {"desired_goal": generation.goals}
+                if self.env.has_object:
+                    reset["object_position"] = start["achieved_goal"]
+                start = self.env.reset(start.empty().update(reset))
+            if self.goal_generator.stopped and isinstance(self.sampler, GraphCurriculumSampler):
+                self.sampler.num_candidates = 1  # plain (EBP) sampling once the curriculum has stopped
+        self.tradeoff.update(distance=d_g if (from_pool or self.goal_generator is None) else math.inf)
+        row.update(d_g=d_g, **{"lambda": float(self.tradeoff.value)})
+        lap("goals")
+
+        # 3. One batched rollout: uniform random actions during warm-up, else pi + noise (eq. 22).
+        warmup = self.env_steps < cfg.train.warmup_steps
+        with torch.inference_mode():
+            if warmup:
+                act = lambda obs, goal: torch.rand(len(obs), self.env.action_dim, generator=self.explore_rng) * 2 - 1  # noqa: E731
+            else:
+                act = partial(self.agent.act, explore=True, generator=self.explore_rng)
+            rollout = collect(self.env, act, self.steps, start)
+        self.env_steps += rollout.numel()
+        lap("rollout")
+
+        # 4. Pool, normalisers, relabelled transitions into the buffer.
+        achieved = torch.cat([rollout["achieved_goal"][:, :1], rollout["next", "achieved_goal"]], dim=1)
+        if self.goal_generator is not None:
+            self.goal_generator.pool.add(achieved, rollout["observation"][:, 0])
+        transitions = self.relabel(rollout)
+        self.agent.update_normalizer(transitions["observation"], transitions["desired_goal"])
+        self.buffer.extend(transitions)
+        lap("store")
+
+        # 5. DDPG updates.
+        losses: dict[str, list[float]] = {}
+        diversity, proximity = [], []
+        if len(self.buffer) >= cfg.train.batch_size:
+            for _ in range(cfg.train.updates):
+                batch = self.buffer.sample()
+                for key, value in self.agent.update(batch).items():
+                    losses.setdefault(key, []).append(float(value))
+                if "diversity" in batch.keys():
+                    diversity.append(float(batch["diversity"][0]))
+                    proximity.append(float(batch["proximity"][0]))
+        row.update({key: float(np.mean(values)) for key, values in losses.items()})
+        if diversity:
+            row.update(diversity=float(np.mean(diversity)), proximity=float(np.mean(proximity)))
+        lap("update")
+
+        # 6. Evaluation on target goals.
+        row["success_rate"] = evaluate(self.eval_env, partial(self.agent.act, explore=False), self.steps)
+        lap("eval")
+        row.update(env_steps=self.env_steps, warmup=float(warmup), stopped=float(bool(self.goal_generator and self.goal_generator.stopped)))
+        self.iteration += 1
+        return row
+
+    # -- checkpoints ------------------------------------------------------------------------------
+
+    def state_dict(self) -> dict:
+        return {
+            "iteration": self.iteration,
+            "env_steps": self.env_steps,
+            "history": self.history,
+            "agent": self.agent.state_dict(),
+            "buffer": self.buffer.state_dict(),
+            "tradeoff": self.tradeoff.state_dict(),
+            "goal_generator": None if self.goal_generator is None else self.goal_generator.state_dict(),
+            "her_rng": self.relabel[-1].generator.get_state(),
+            "explore_rng": self.explore_rng.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "env_random": self.env.random_state(),
+            "eval_env_random": self.eval_env.random_state(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.iteration, self.env_steps, self.history = state["iteration"], state["env_steps"], state["history"]
+        self.agent.load_state_dict(state["agent"])
+        self.buffer.load_state_dict(state["buffer"])
+        self.tradeoff.load_state_dict(state["tradeoff"])
+        if self.goal_generator is not None:
+            self.goal_generator.load_state_dict(state["goal_generator"])
+            if self.goal_generator.stopped and isinstance(self.sampler, GraphCurriculumSampler):
+                self.sampler.num_candidates = 1
+        self.relabel[-1].generator.set_state(state["her_rng"])
+        self.explore_rng.set_state(state["explore_rng"])
+        torch.set_rng_state(state["torch_rng"])
+        self.env.set_random_state(state["env_random"])
+        self.eval_env.set_random_state(state["eval_env_random"])
+
+    def save(self) -> None:
+        checkpoint.save(self.state_dict(), self.run_dir / CHECKPOINT)
+
+    def write_metrics(self) -> None:
+        """Rewrites ``metrics.csv`` from the history (so a resumed run never holds rows twice)."""
+        columns = list(dict.fromkeys(key for row in self.history for key in row))
+        tmp = self.run_dir / f".{METRICS}.tmp"
+        with open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, columns)
+            writer.writeheader()
+            writer.writerows(self.history)
+        os.replace(tmp, self.run_dir / METRICS)
+
+    # -- the loop ---------------------------------------------------------------------------------
+
+    def train(self) -> list[dict[str, float]]:
+        """Runs the remaining iterations, checkpointing after each; returns the metrics history."""
+        cfg = self.cfg
+        logger = _tensorboard(self.run_dir) if cfg.logging.tensorboard else None
+        bar = tqdm(
+            total=cfg.train.iterations,
+            initial=self.iteration,
+            desc=f"{cfg.env.name}/{cfg.algo.name}",
+            unit="it",
+            disable=not cfg.logging.progress,
+        )
+        while self.iteration < cfg.train.iterations:
+            row = self.iteration_step()
+            tick = time.perf_counter()
+            self.history.append(row)
+            self.save()
+            row["seconds_checkpoint"] = time.perf_counter() - tick  # in the CSV; in the next checkpoint
+            self.write_metrics()
+            if logger is not None:
+                for key, value in row.items():
+                    logger.add_scalar(key, value, row["iteration"])
+            bar.set_postfix(success=f"{row['success_rate']:.2f}", lam=f"{row['lambda']:.3g}", d_g=f"{row['d_g']:.3f}")
+            bar.update(1)
+        bar.close()
+        if logger is not None:
+            logger.close()
+        return self.history
+
+
+def _tensorboard(run_dir: Path):
+    """A TensorBoard ``SummaryWriter`` when tensorboard is installed, else ``None``."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        return None
+    return SummaryWriter(str(run_dir / "tensorboard"))
+
+
+def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
+    """Trains with ``cfg`` in ``run_dir`` (resuming from its checkpoint when ``cfg.resume``)."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    path = run_dir / CHECKPOINT
+    if path.exists() and not cfg.resume:
+        raise FileExistsError(
+            f"run folder {run_dir} already holds a checkpoint: pass resume=true to continue that run, "
+            f"or hydra.run.dir=<folder> (or another seed) for a new one"
+        )
+    trainer = Trainer(cfg, run_dir)
+    OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    if cfg.resume and path.exists():
+        trainer.load_state_dict(checkpoint.load(path))
+        print(f"resumed {run_dir} after iteration {trainer.iteration}")
+    return trainer.train()
+
+
+@hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
+def main(cfg: DictConfig) -> None:
+    history = run(cfg, Path(HydraConfig.get().runtime.output_dir))
+    if history:
+        print(f"final success rate {history[-1]['success_rate']:.2f} after {len(history)} iterations")
+
+
+if __name__ == "__main__":
+    main()

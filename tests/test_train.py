@@ -1,0 +1,125 @@
+"""The training entry point: every algo on every task, exact resume, and bad configuration caught early."""
+
+from __future__ import annotations
+
+import csv
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException, MissingConfigException
+
+from envs import TASKS
+from gchgg import checkpoint, train
+
+CONF = str(Path(__file__).resolve().parents[1] / "conf")
+ALGOS = ("her", "hgg", "ghgg", "cher", "gchgg")
+
+
+def tiny(tmp_path: Path, iterations: int = 1) -> list[str]:
+    """Overrides for a run of seconds: 2 episodes, a few updates, a coarse graph cached under tmp_path."""
+    return [
+        f"train.iterations={iterations}",
+        "train.episodes=2",
+        "train.updates=3",
+        "train.batch_size=16",
+        "train.warmup_steps=0",
+        "eval.episodes=2",
+        "buffer.episodes=8",
+        "her.k=1",
+        "cher.pool_size=64",
+        "graph.n=[11,11,5]",
+        f"graph.cache_dir={tmp_path / 'graphs'}",
+        "agent.hidden=[16,16]",
+        "logging.progress=false",
+        "logging.tensorboard=false",
+    ]
+
+
+def config(overrides: list[str]):
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        return compose("config", overrides=overrides)
+
+
+def read_metrics(run_dir: Path) -> list[dict[str, str]]:
+    with open(run_dir / "metrics.csv") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.parametrize("task", TASKS)
+def test_every_algo_runs_on_every_task_through_the_entry_point(task, algo, tmp_path, monkeypatch):
+    run_dir = tmp_path / "run"
+    argv = ["gchgg.train", f"env={task}", f"algo={algo}", *tiny(tmp_path, iterations=2), f"hydra.run.dir={run_dir}"]
+    monkeypatch.setattr(sys, "argv", argv)
+    train.main()
+    rows = read_metrics(run_dir)
+    assert [int(r["iteration"]) for r in rows] == [0, 1]
+    steps = {"reach": 50}.get(task, 100)
+    assert [int(r["env_steps"]) for r in rows] == [2 * steps, 4 * steps]
+    for r in rows:
+        assert 0.0 <= float(r["success_rate"]) <= 1.0
+        for key in ("loss_actor", "loss_value", "lambda", "d_g"):
+            value = float(r[key])
+            assert value == value and abs(value) != float("inf"), (key, value)  # finite, never NaN
+    saved = (run_dir / "config.yaml").read_text()
+    assert f"name: {task}" in saved and f"name: {algo}" in saved
+    assert checkpoint.load(run_dir / "checkpoint.pt")["iteration"] == 2
+
+
+@pytest.mark.parametrize("algo", ["her", "gchgg"])
+def test_resumed_run_matches_uninterrupted_run(algo, tmp_path):
+    base = ["env=reach", f"algo={algo}", *tiny(tmp_path)]
+    whole, split = tmp_path / "whole", tmp_path / "split"
+    train.run(config([*base, "train.iterations=3"]), whole)
+    train.run(config([*base, "train.iterations=2"]), split)  # "killed" after iteration 1's checkpoint
+    train.run(config([*base, "train.iterations=3", "resume=true"]), split)
+
+    def results(run_dir):
+        return [{k: v for k, v in row.items() if not k.startswith("seconds_")} for row in read_metrics(run_dir)]
+
+    assert len(results(whole)) == 3
+    assert results(split) == results(whole)
+
+
+def test_existing_run_needs_resume(tmp_path):
+    cfg = config(["env=reach", "algo=her", *tiny(tmp_path)])
+    train.run(cfg, tmp_path / "run")
+    with pytest.raises(FileExistsError, match="resume=true"):
+        train.run(cfg, tmp_path / "run")
+
+
+def test_corrupt_checkpoint_is_an_error_that_says_so(tmp_path):
+    run_dir = tmp_path / "run"
+    train.run(config(["env=reach", "algo=her", *tiny(tmp_path)]), run_dir)
+    path = run_dir / "checkpoint.pt"
+    path.write_bytes(path.read_bytes()[:-100])
+    with pytest.raises(checkpoint.CorruptCheckpointError, match="corrupt"):
+        train.run(config(["env=reach", "algo=her", *tiny(tmp_path, iterations=2), "resume=true"]), run_dir)
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("train.episodes=0", "train.episodes must be an integer > 0, got 0"),
+        ("train.batch_size=-5", "train.batch_size must be an integer > 0, got -5"),
+        ("eval.episodes=0", "eval.episodes must be an integer > 0"),
+        ("train.iterations=0", "train.iterations must be an integer > 0"),
+        ("agent.actor_lr=0", "agent.actor_lr must be a number > 0"),
+        ("agent.gamma=1.5", r"agent.gamma must be a number in \[0, 1\], got 1.5"),
+        ("graph.n=[31,3,11]", "spacing"),
+        ("graph.margin=-0.1", "margin"),
+    ],
+)
+def test_bad_configuration_fails_before_training_naming_the_setting(override, message, tmp_path):
+    cfg = config(["env=push_new", "algo=gchgg", *tiny(tmp_path), override])
+    with pytest.raises(ValueError, match=message):
+        train.run(cfg, tmp_path / "run")
+    assert not (tmp_path / "run" / "metrics.csv").exists()
+
+
+@pytest.mark.parametrize("override, choice", [("algo=sac", "gchgg"), ("env=fetch", "push_new")])
+def test_unknown_env_or_algo_lists_the_choices(override, choice):
+    with pytest.raises((MissingConfigException, ConfigCompositionException), match=choice):
+        config([override])
