@@ -194,7 +194,7 @@ class Trainer:
         warmup = self.env_steps < cfg.train.warmup_steps
         with torch.inference_mode():
             if warmup:
-                act = lambda obs, goal: torch.rand(len(obs), self.env.action_dim, generator=self.explore_rng) * 2 - 1  # noqa: E731
+                act = lambda obs, goal: self.agent.random_action(len(obs), self.explore_rng)  # noqa: E731
             else:
                 act = partial(self.agent.act, explore=True, generator=self.explore_rng)
             rollout = collect(self.env, act, self.steps, start)
