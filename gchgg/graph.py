@@ -247,6 +247,7 @@ class GoalGraph:
         self._row_offset = rows * slots - rows * (rows + 1) // 2
         self._adjacency: csr_matrix | None = None
 
+        self._vertex_lookup: tuple[torch.Tensor, torch.Tensor] | None = None  # see _pair_distance_unchecked
         self.cache_path: Path | None = None
         self.loaded_from_cache = False
         if cache_dir is not None:
@@ -320,6 +321,28 @@ class GoalGraph:
                     f"got values in [{index.min().item()}, {index.max().item()}]"
                 )
         return self._slot_distance(i.long() + 1, j.long() + 1)
+
+    def _pair_distance_unchecked(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
+        """:meth:`distance_between_vertices` without its checks, for hot loops (samplers).
+
+        Args:
+            i: int64 vertex indices ``[...]``, which the caller guarantees lie in ``[-1, num_vertices)``
+                (anything else reads a wrong entry or raises).
+            j: int64 vertex indices, broadcastable against ``i``.
+
+        Returns:
+            float32 ``[...]`` graph distances, ``inf`` where either index is ``-1`` or no path exists.
+        """
+        if self._vertex_lookup is None:
+            # Row offsets indexed by vertex (slot - 1; -1, the void slot, wraps to the last entry) with
+            # the slot shift folded in, and the decoded distance of every int16 code.
+            offset = self._row_offset + 1
+            decoded = torch.arange(_UNREACHABLE + 1, dtype=torch.float32).mul_(self._scale)
+            decoded[_UNREACHABLE] = math.inf
+            self._vertex_lookup = (torch.cat([offset[1:], offset[:1]]), decoded)
+        offset, decoded = self._vertex_lookup
+        code = torch.take(self._table, torch.take(offset, torch.minimum(i, j)) + torch.maximum(i, j))
+        return torch.take(decoded, code.long())
 
     def shortest_path(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         """Vertex positions along one shortest path from the vertex of goal ``a`` to that of goal ``b``.

@@ -337,3 +337,29 @@ def test_sampler_reads_the_schedule_at_every_sample(graph):
     assert buffer.sample()["tradeoff"][0] == 0.0
     schedule.update(distance=0.09)
     assert buffer.sample()["tradeoff"][0].item() == pytest.approx(1000 * math.exp(-1.0))
+
+
+def test_curriculum_cache_follows_overwrites_and_buffer_writes(graph):
+    # The per-row cache (goal vertex, goal-to-target distance) must follow rows overwritten in a
+    # full buffer and rows reported with mark_update (TorchRL's buffer[index] = ... does not tell
+    # the sampler): F_prox and F_div always match the stored rows.
+    sampler = GraphCurriculumSampler(graph, num_candidates=4, tradeoff=2.0, unreachable_distance=2.5)
+    buffer = make_buffer(sampler, goal_transitions(300, seed=0), size=300, batch=128)
+    buffer.sample()  # fills the cache
+    buffer.extend(goal_transitions(200, seed=1))  # wraps: rows 0..199 overwritten
+    buffer.sample()
+    buffer[torch.arange(200, 300)] = goal_transitions(100, seed=2)
+    sampler.mark_update(torch.arange(200, 300))
+    for _ in range(3):
+        batch = buffer.sample()
+        stored = buffer.storage[batch["index"]]
+        assert torch.equal(batch["desired_goal"], stored["desired_goal"])
+        distance = graph.distance(stored["desired_goal"], stored["target_goal"])
+        expected = -torch.where(torch.isfinite(distance), distance, 2.5).sum()
+        assert batch["proximity"][0].item() == pytest.approx(expected.item(), rel=1e-5)
+        nearest = nearest_neighbour_distances(stored["desired_goal"][None], graph, neighbours=None)
+        diversity = torch.where(torch.isfinite(nearest), nearest, 0.0).sum()
+        assert batch["diversity"][0].item() == pytest.approx(diversity.item(), rel=1e-5)
+    buffer.empty()
+    buffer.extend(goal_transitions(100, seed=3))
+    assert (buffer.sample()["index"] < 100).all()

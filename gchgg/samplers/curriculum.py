@@ -6,6 +6,7 @@ import math
 from collections import OrderedDict
 from typing import Any
 
+import numpy as np
 import torch
 from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
@@ -62,9 +63,17 @@ class GraphCurriculumSampler(Sampler):
     the straight line makes the shortlist approximate; ``neighbours=None`` scores all pairs (exact
     for any metric). See :class:`NearestNeighbours`.
 
-    Cost per ``sample``: an EBP or uniform draw of K·B rows (O(K·B log n)), two field reads of K·B
-    rows, K·B goal-to-target distances, K·B² multiply-adds and ``neighbours + 1`` value-only passes
-    over them, K·B·neighbours metric reads and a few more per unproven goal. On push_new
+    Per-row cache. Each stored row's goal vertex (graph metrics) and goal-to-target distance are
+    computed once, at the first ``sample`` after the row is written (rows the buffer reports through
+    ``extend``/``add``/``mark_update``, and rows new to the storage), and kept in a float32 ``[n, 2]``
+    tensor (8 bytes per stored row); ``sample`` then reads neither goals nor targets from the
+    storage (except the goals for a diversity metric that is not a graph). Rows overwritten behind
+    the sampler's back (TorchRL's ``buffer[index] = ...``, or another buffer writing into a full
+    shared storage) keep stale entries until reported with ``sampler.mark_update(index)``.
+
+    Cost per ``sample``: an EBP or uniform draw of K·B rows (O(K·B log n)), one read of K·B cached
+    rows, K·B²·5 multiply-adds (one batched product) and ``neighbours + 1`` value-only passes
+    over them, K·B·neighbours unchecked table reads and a few more per unproven goal. On push_new
     (``benchmarks/samplers.py``: 5,000 episodes, graph 31 × 31 × 11) about 1 % of the goals are
     unproven and the shortlist always equals the all-pairs value; the time, dominated by random
     memory reads (storage rows, graph table), is printed there as a ratio to uniform sampling.
@@ -148,6 +157,10 @@ class GraphCurriculumSampler(Sampler):
         self.unreachable_distance = unreachable_distance
         self._energy = EnergySampler(energy_key) if energy_key is not None else None
         self._nearest = NearestNeighbours(self.diversity_metric, neighbours)
+        # Per stored row: goal vertex and goal-to-target distance, valid for rows < _known not in _pending.
+        self._rows: torch.Tensor | None = None
+        self._known = 0
+        self._pending: list[torch.Tensor] = []
 
     @property
     def neighbours(self) -> int | None:
@@ -167,18 +180,14 @@ class GraphCurriculumSampler(Sampler):
             index = self._energy.draw(storage, k, b)
         else:
             index = torch.randint(n, (k, b), generator=rng).sort(-1).values  # sorted: cache-friendly reads
-        goals = read_field(storage, self.goal_key, index, self)
-        targets = read_field(storage, self.target_key, index, self)
-
+        rows = self._stored_rows(storage, index, n)  # [K, B, 2]: goal vertex, goal-to-target distance
+        to_target = rows[..., 1]
         lam = float(self.tradeoff.value)
-        vertex = None
-        if self._nearest.snaps and self.diversity_metric is self.metric:  # snap each goal once
-            vertex, target_vertex = self.metric.vertex_index(torch.stack([goals, targets]))
-            to_target = self.metric.distance_between_vertices(vertex, target_vertex)
+        if self._nearest.snaps:
+            nearest = self._nearest(vertex=rows[..., 0].long())
         else:
-            to_target = _check(self.metric.distance(goals, targets), "metric")
+            nearest = self._nearest(read_field(storage, self.goal_key, index, self))
         proximity = -self._finite(to_target).sum(-1)  # eq. 15 with C = 0
-        nearest = self._nearest(goals, vertex=vertex)
         diversity = torch.where(torch.isfinite(nearest), nearest, 0.0).sum(-1)  # eq. 19
         best = torch.argmax(diversity + lam * proximity)
         info = {
@@ -198,20 +207,65 @@ class GraphCurriculumSampler(Sampler):
             fill = distance[finite].max().item() if bool(finite.any()) else 0.0
         return torch.where(finite, distance, fill)
 
-    # Writes invalidate the EBP cache.
+    def _stored_rows(self, storage: Storage, index: torch.Tensor, n: int) -> torch.Tensor:
+        """Cached ``[..., 2]`` of rows ``index``: goal vertex (as float, -1 off the graph; 0 without a
+        graph) and goal-to-target distance, computed once per written row (see :meth:`_refresh`)."""
+        if self._rows is None or n != self._known or self._pending:
+            self._refresh(storage, n)
+        return self._rows.index_select(0, index.view(-1)).view(*index.shape, 2)
+
+    def _refresh(self, storage: Storage, n: int) -> None:
+        """Compute the cache entries of rows written since the last sample (and of rows new to the storage)."""
+        cache = self._rows
+        fresh = [index[index < min(n, self._known)] for index in self._pending]
+        if cache is None or len(cache) < n:
+            size = max(n, int(getattr(storage, "max_size", n) or n))
+            grown = torch.empty(size, 2)
+            if cache is not None:
+                grown[: self._known] = cache[: self._known]
+            cache, self._known = grown, 0
+            fresh = []
+        if n > self._known:
+            fresh.append(torch.arange(self._known, n))
+        self._rows, self._known, self._pending = cache, n, []
+        fresh = torch.cat(fresh) if fresh else torch.empty(0, dtype=torch.long)
+        if not len(fresh):
+            return
+        goals = read_field(storage, self.goal_key, fresh, self)
+        targets = read_field(storage, self.target_key, fresh, self)
+        if self._nearest.snaps:
+            cache[fresh, 0] = self.diversity_metric.vertex_index(goals).float()  # exact: < 2**24 vertices
+        else:
+            cache[fresh, 0] = 0.0
+        cache[fresh, 1] = _check(self.metric.distance(goals, targets), "metric")
+
+    def _forget(self, index) -> None:
+        """Mark (re)written rows: their cache entries are recomputed at the next sample."""
+        if self._rows is None:
+            return
+        if isinstance(index, (int, torch.Tensor, np.ndarray)) and not torch.as_tensor(index).is_floating_point():
+            self._pending.append(torch.as_tensor(index).reshape(-1).long())
+        else:  # a slice or anything else: recompute everything
+            self._rows = None
+
+    # Writes invalidate the EBP cache and the rows' cached vertices and distances.
     def extend(self, index: torch.Tensor) -> None:
+        self._forget(index)
         if self._energy is not None:
             self._energy.extend(index)
 
     def add(self, index: int) -> None:
+        self._forget(index)
         if self._energy is not None:
             self._energy.add(index)
 
     def mark_update(self, index, *, storage: Storage | None = None) -> None:
+        self._forget(index)
         if self._energy is not None:
             self._energy.mark_update(index)
 
     def _empty(self) -> None:
+        self._rows, self._known, self._pending = None, 0, []
         if self._energy is not None:
             self._energy._empty()
 
@@ -275,10 +329,13 @@ class NearestNeighbours:
     between the goals' lattice vertices, which their distance never undercuts (up to the table's
     rounding, ``resolution / 2``), and each goal is snapped to its vertex once.
 
-    Speed: the distance matrix lives in scratch buffers reused between calls (fresh multi-megabyte
-    tensors cost more in page faults than the arithmetic), and the shortlist is found with
-    ``neighbours + 1`` value-only minimum passes over int32 keys that pack the (floored, so still a
-    lower bound) squared distance above the column index; ``topk`` would be ~10× slower.
+    Speed: the squared distances come from one ``[K, B, 5] × [K, 5, B]`` product (the norms ride
+    along as extra coordinates) into a scratch matrix reused between calls (fresh multi-megabyte
+    tensors cost more in page faults than the arithmetic) and are turned into int32 keys in place,
+    packing the (floored, so still a lower bound) squared distance above the column index; the
+    shortlist is found with ``neighbours + 1`` value-only minimum passes over them (``topk`` would
+    be ~10× slower). Graph distances are read with the graph's unchecked vertex lookup
+    (``_pair_distance_unchecked`` where it has one): the indices come from ``vertex_index``.
 
     Args:
         metric: object with ``distance(a, b)`` on goals ``[..., 3]``.
@@ -298,10 +355,16 @@ class NearestNeighbours:
         return self._snap
 
     def __call__(
-        self, goals: torch.Tensor, *, vertex: torch.Tensor | None = None, stats: dict | None = None
+        self, goals: torch.Tensor | None = None, *, vertex: torch.Tensor | None = None, stats: dict | None = None
     ) -> torch.Tensor:
-        """Nearest-neighbour distances ``[K, B]`` of goals ``[K, B, 3]`` (``vertex``: their vertex_index, if known)."""
-        k, b, _ = goals.shape
+        """Nearest-neighbour distances ``[K, B]`` of goals ``[K, B, 3]``.
+
+        For a graph metric the goals' ``vertex_index`` ``[K, B]`` may be given instead of (or with)
+        the goals; it must hold valid indices in ``[-1, num_vertices)`` (they are not checked).
+        """
+        if goals is None and vertex is None:
+            raise ValueError("NearestNeighbours needs goals [K, B, 3] or (for a graph metric) their vertex indices")
+        k, b = vertex.shape if vertex is not None else goals.shape[:2]
         if b < 2:
             return torch.full((k, b), math.inf)
         metric = self.metric
@@ -309,19 +372,24 @@ class NearestNeighbours:
             if vertex is None:
                 vertex = metric.vertex_index(goals)  # [K, B], -1 off the graph
             if self._lattice is None:
-                self._lattice = torch.as_tensor(metric.vertices, dtype=torch.float32)
+                lattice = torch.as_tensor(metric.vertices, dtype=torch.float32)
+                self._lattice = lattice - lattice.mean(0)
             off = vertex < 0
-            positions = self._lattice[vertex.clamp(min=0)] - self._lattice.mean(0)
+            positions = self._lattice[vertex]  # -1 wraps to the last vertex; moved away just below
             # Off-graph goals are inf away from everything: park them far apart, out of every shortlist.
             far = _FAR * torch.arange(1, b + 1, dtype=positions.dtype)
             positions[..., 0] = torch.where(off, far.expand(k, b), positions[..., 0])
+            lookup = getattr(metric, "_pair_distance_unchecked", metric.distance_between_vertices)
+            flat = vertex.view(-1)
 
             def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
                 # Goal ``rows`` to goals ``cols`` (indices within candidate ``batch``), broadcasting.
-                return metric.distance_between_vertices(vertex[batch, rows], vertex[batch, cols])
+                return lookup(flat[batch * b + rows], flat[batch * b + cols])
 
             tolerance = _BOUND_TOLERANCE + 0.5 * float(getattr(metric, "resolution", 0.0))
         else:
+            if goals is None:
+                raise ValueError("NearestNeighbours: vertex indices need a graph metric; pass the goals [K, B, 3]")
             positions = goals.float() - goals.float().mean(1, keepdim=True)
             off = None
 
@@ -341,7 +409,11 @@ class NearestNeighbours:
             return distance.min(-1).values
 
         cols, lower, keys, quantum = self._shortlist(positions, m)
-        nearest = pair(rows, cols, batch).min(-1).values  # [K, B]
+        if self._snap:  # the same lookup as pair(rows, cols, batch), with fewer index operations
+            candidates = vertex.gather(1, cols.view(k, b * m)).view(k, b, m)
+            nearest = lookup(vertex.unsqueeze(-1), candidates).min(-1).values  # [K, B]
+        else:
+            nearest = pair(rows, cols, batch).min(-1).values  # [K, B]
         # Proven where the shortlist beats every goal outside it (a distance of 0, a duplicate goal,
         # always does). For the others, only goals whose Euclidean lower bound is below the best
         # distance so far can be nearer: score those (usually a handful) with the metric.
@@ -373,13 +445,18 @@ class NearestNeighbours:
         # Squared-distance levels: exact integers in float32 (< 2**24) that fit above the column index in int32.
         levels = min((2**31 - 1) // b - 1, 2**24 - 1)
         quantum = _CAP_SQUARED / levels  # m² per level
-        norms = points.square().sum(-1)
+        # Squared distances in levels from one product: [q_i, |q_i|², 1] · [-2 q_j, 1, |q_j|²] with q = p / √quantum.
+        scaled = points * (1.0 / math.sqrt(quantum))
+        norms = scaled.square().sum(-1, keepdim=True)
+        ones = torch.ones_like(norms)
+        left = torch.cat([scaled, norms, ones], -1)
+        right = torch.cat([scaled * -2.0, ones, norms], -1).transpose(1, 2).contiguous()  # bmm is faster so
         squared = self._buffer("squared", (k, b, b), torch.float32)
-        torch.baddbmm(norms.unsqueeze(-1), points, points.transpose(1, 2), alpha=-2.0, out=squared)
-        squared.add_(norms.unsqueeze(-2)).clamp_(0.0, _CAP_SQUARED).mul_(1.0 / quantum).clamp_(max=levels)
-        keys = self._buffer("keys", (k, b, b), torch.int32)
+        torch.bmm(left, right, out=squared).clamp_(0.0, levels)  # capped at _CAP_SQUARED: still a lower bound
+        # In place (same 4-byte slots, element by element: one scratch matrix, half the cache footprint).
+        keys = squared.view(torch.int32)
         keys.copy_(squared)  # truncation = floor for values >= 0: stays a lower bound
-        keys.mul_(b).add_(torch.arange(b, dtype=torch.int32))  # key = level · B + column
+        torch.add(self._columns(b), keys, alpha=b, out=keys)  # key = level · B + column
         keys.diagonal(dim1=-2, dim2=-1).fill_(_INT32_MAX)
         cols = torch.empty(k, b, m, dtype=torch.long)
         for r in range(m):
@@ -388,6 +465,12 @@ class NearestNeighbours:
             keys.scatter_(-1, cols[..., r : r + 1], _INT32_MAX)
         level = keys.amin(-1) // b
         return cols, (level.float() * quantum).sqrt_(), keys, quantum  # levels < 2**24: exact in float32
+
+    def _columns(self, b: int) -> torch.Tensor:
+        columns = self._scratch.get("columns")
+        if columns is None or len(columns) != b:
+            columns = self._scratch["columns"] = torch.arange(b, dtype=torch.int32)
+        return columns
 
     def _buffer(self, name: str, shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
         buffer = self._scratch.get(name)
