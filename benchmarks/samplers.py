@@ -30,7 +30,7 @@ from tensordict import TensorDict  # noqa: E402
 from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg.graph import GoalGraph  # noqa: E402
+from gchgg.graph import EuclideanMetric, GoalGraph  # noqa: E402
 from gchgg.samplers import (  # noqa: E402
     AdaptiveTradeoff,
     CherSampler,
@@ -61,8 +61,13 @@ def memory() -> None:
     reserved = storage._storage.bytes()
     print(f"memory: one stored transition = {per_transition:.0f} bytes "
           f"({', '.join(sorted(str(k) for k in transitions.keys(True, True)))})")
+    # The curriculum sampler's per-row cache is sized to the storage's capacity at the first sample.
+    sampler = GraphCurriculumSampler(EuclideanMetric(), 8)
+    sampler.sample(storage, BATCH)
+    cache = sampler._rows.numel() * sampler._rows.element_size()
     print(f"memory: 10,000 push_new episodes x {K_HER + 1} x T={steps} = {rows:,} transitions "
-          f"reserve {reserved / 1e9:.2f} GB in LazyTensorStorage (target <= 2 GB)")
+          f"reserve {reserved / 1e9:.2f} GB in LazyTensorStorage + {cache / 1e9:.2f} GB curriculum cache "
+          f"({cache / rows:.0f} bytes/row) = {(reserved + cache) / 1e9:.2f} GB (target <= 2 GB)")
 
 
 def env_steps(env) -> int:

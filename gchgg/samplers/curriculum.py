@@ -19,8 +19,8 @@ from gchgg.samplers.tradeoff import Tradeoff, as_tradeoff
 __all__ = ["GraphCurriculumSampler", "NearestNeighbours", "nearest_neighbour_distances"]
 
 _BOUND_TOLERANCE = 1e-3  # metres: slack on the Euclidean lower bound (float32 rounding of |a|² + |b|² − 2a·b)
-_FAR = 10.0  # metres: off-graph goals are moved this far (and further) from the field for the shortlist
-_CAP_SQUARED = 4.0  # m²: squared distances are capped here in the shortlist keys (a cap keeps a lower bound)
+_LEVEL_SLACK = 2  # levels added to every squared distance so float32 rounding never makes one negative
+_TO_TARGET = 6  # column of the goal-to-target distance in the sampler's per-row cache (after the point)
 _INT32_MAX = 2**31 - 1
 
 
@@ -63,20 +63,22 @@ class GraphCurriculumSampler(Sampler):
     the straight line makes the shortlist approximate; ``neighbours=None`` scores all pairs (exact
     for any metric). See :class:`NearestNeighbours`.
 
-    Per-row cache. Each stored row's goal vertex (graph metrics) and goal-to-target distance are
-    computed once, at the first ``sample`` after the row is written (rows the buffer reports through
-    ``extend``/``add``/``mark_update``, and rows new to the storage), and kept in a float32 ``[n, 2]``
-    tensor (8 bytes per stored row); ``sample`` then reads neither goals nor targets from the
-    storage (except the goals for a diversity metric that is not a graph). Rows overwritten behind
-    the sampler's back (TorchRL's ``buffer[index] = ...``, or another buffer writing into a full
-    shared storage) keep stale entries until reported with ``sampler.mark_update(index)``.
+    Per-row cache. Each stored row's shortlist point (the goal's lattice vertex relative to the
+    field's centre, its squared norm and its vertex index; see :meth:`NearestNeighbours.points`) and
+    its goal-to-target distance are computed once, at the first ``sample`` after the row is written
+    (rows the buffer reports through ``extend``/``add``/``mark_update``, and rows new to the
+    storage), and kept in a float32 ``[n, 7]`` tensor (28 bytes per stored row); ``sample`` then
+    reads neither goals nor targets from the storage (except the goals for a diversity metric that
+    is not a graph) and snaps no goal. Rows overwritten behind the sampler's back (TorchRL's
+    ``buffer[index] = ...``, or another buffer writing into a full shared storage) keep stale
+    entries until reported with ``sampler.mark_update(index)``.
 
     Cost per ``sample``: an EBP or uniform draw of K·B rows (O(K·B log n)), one read of K·B cached
-    rows, K·B²·5 multiply-adds (one batched product) and ``neighbours + 1`` value-only passes
-    over them, K·B·neighbours unchecked table reads and a few more per unproven goal. On push_new
-    (``benchmarks/samplers.py``: 5,000 episodes, graph 31 × 31 × 11) about 1 % of the goals are
-    unproven and the shortlist always equals the all-pairs value; the time, dominated by random
-    memory reads (storage rows, graph table), is printed there as a ratio to uniform sampling.
+    rows, K·B²·5 multiply-adds (one batched product) and about ten passes over the K·B² int32
+    keys, K·B·neighbours unchecked table reads and a few more per unproven goal, and ~60 small
+    tensor operations. On push_new (``benchmarks/samplers.py``: 5,000 episodes, graph
+    31 × 31 × 11) about 1 % of the goals are unproven and the shortlist always equals the all-pairs
+    value; the time is printed there as a ratio to uniform sampling.
 
     Args:
         metric: object with ``distance(a, b)`` on goals ``[..., 3]`` → ``[...]`` (``GoalGraph`` for
@@ -180,16 +182,13 @@ class GraphCurriculumSampler(Sampler):
             index = self._energy.draw(storage, k, b)
         else:
             index = torch.randint(n, (k, b), generator=rng).sort(-1).values  # sorted: cache-friendly reads
-        rows = self._stored_rows(storage, index, n)  # [K, B, 2]: goal vertex, goal-to-target distance
-        to_target = rows[..., 1]
+        rows = self._stored_rows(storage, index, n)  # [K, B, 7]: shortlist point (6), goal-to-target distance
         lam = float(self.tradeoff.value)
-        if self._nearest.snaps:
-            nearest = self._nearest(vertex=rows[..., 0].long())
-        else:
-            nearest = self._nearest(read_field(storage, self.goal_key, index, self))
-        proximity = -self._finite(to_target).sum(-1)  # eq. 15 with C = 0
-        diversity = torch.where(torch.isfinite(nearest), nearest, 0.0).sum(-1)  # eq. 19
-        best = torch.argmax(diversity + lam * proximity)
+        goals = None if self._nearest.snaps else read_field(storage, self.goal_key, index, self)
+        nearest = self._nearest.from_points(rows[..., :_TO_TARGET], goals)
+        proximity = -self._finite(rows[..., _TO_TARGET]).sum(-1)  # eq. 15 with C = 0
+        diversity = nearest.nan_to_num(posinf=0.0).sum(-1)  # eq. 19: no finite neighbour adds nothing
+        best = int(torch.argmax(diversity + lam * proximity))
         info = {
             "diversity": diversity[best],
             "proximity": proximity[best],
@@ -208,11 +207,11 @@ class GraphCurriculumSampler(Sampler):
         return torch.where(finite, distance, fill)
 
     def _stored_rows(self, storage: Storage, index: torch.Tensor, n: int) -> torch.Tensor:
-        """Cached ``[..., 2]`` of rows ``index``: goal vertex (as float, -1 off the graph; 0 without a
-        graph) and goal-to-target distance, computed once per written row (see :meth:`_refresh`)."""
+        """Cached ``[..., 7]`` of rows ``index``: the goal's shortlist point (see
+        :meth:`NearestNeighbours.points`) and its goal-to-target distance, computed once per written row."""
         if self._rows is None or n != self._known or self._pending:
             self._refresh(storage, n)
-        return self._rows.index_select(0, index.view(-1)).view(*index.shape, 2)
+        return self._rows.index_select(0, index.view(-1)).view(*index.shape, _TO_TARGET + 1)
 
     def _refresh(self, storage: Storage, n: int) -> None:
         """Compute the cache entries of rows written since the last sample (and of rows new to the storage)."""
@@ -220,7 +219,7 @@ class GraphCurriculumSampler(Sampler):
         fresh = [index[index < min(n, self._known)] for index in self._pending]
         if cache is None or len(cache) < n:
             size = max(n, int(getattr(storage, "max_size", n) or n))
-            grown = torch.empty(size, 2)
+            grown = torch.empty(size, _TO_TARGET + 1)
             if cache is not None:
                 grown[: self._known] = cache[: self._known]
             cache, self._known = grown, 0
@@ -233,11 +232,8 @@ class GraphCurriculumSampler(Sampler):
             return
         goals = read_field(storage, self.goal_key, fresh, self)
         targets = read_field(storage, self.target_key, fresh, self)
-        if self._nearest.snaps:
-            cache[fresh, 0] = self.diversity_metric.vertex_index(goals).float()  # exact: < 2**24 vertices
-        else:
-            cache[fresh, 0] = 0.0
-        cache[fresh, 1] = _check(self.metric.distance(goals, targets), "metric")
+        cache[fresh, :_TO_TARGET] = self._nearest.points(goals)
+        cache[fresh, _TO_TARGET] = _check(self.metric.distance(goals, targets), "metric")
 
     def _forget(self, index) -> None:
         """Mark (re)written rows: their cache entries are recomputed at the next sample."""
@@ -321,21 +317,24 @@ class NearestNeighbours:
     """Exact nearest-neighbour metric distances within batches of goals, via a Euclidean shortlist.
 
     For each goal the ``neighbours`` Euclidean-nearest goals of its batch are found from one
-    ``[K, B, B]`` squared-distance matrix (a batched matrix product) and only those pairs are read
-    from the metric. The (neighbours+1)-th Euclidean distance bounds every other pair from below,
-    so a shortlist minimum within that bound is the exact nearest neighbour for any metric never
-    shorter than the straight line; the other goals are re-scored against their whole batch. Graph
-    metrics (with ``vertex_index``, ``vertices`` and ``distance_between_vertices``) are measured
-    between the goals' lattice vertices, which their distance never undercuts (up to the table's
-    rounding, ``resolution / 2``), and each goal is snapped to its vertex once.
+    ``[K, B, B]`` matrix of squared distances (a batched matrix product) and only those pairs are
+    read from the metric. The (neighbours+1)-th Euclidean distance bounds every other pair from
+    below, so a shortlist minimum within that bound is the exact nearest neighbour for any metric
+    never shorter than the straight line; for the other goals, every goal whose bound is below the
+    best distance found is read too. Graph metrics (with ``vertex_index``, ``vertices`` and
+    ``distance_between_vertices``) are measured between the goals' lattice vertices, which their
+    distance never undercuts (up to the table's rounding, ``resolution / 2``).
 
-    Speed: the squared distances come from one ``[K, B, 5] × [K, 5, B]`` product (the norms ride
-    along as extra coordinates) into a scratch matrix reused between calls (fresh multi-megabyte
-    tensors cost more in page faults than the arithmetic) and are turned into int32 keys in place,
-    packing the (floored, so still a lower bound) squared distance above the column index; the
-    shortlist is found with ``neighbours + 1`` value-only minimum passes over them (``topk`` would
-    be ~10× slower). Graph distances are read with the graph's unchecked vertex lookup
-    (``_pair_distance_unchecked`` where it has one): the indices come from ``vertex_index``.
+    Each goal becomes a *point* once (:meth:`points`, which a sampler can cache per stored row):
+    its position relative to a fixed origin (the lattice vertex for a graph; off-graph goals parked
+    together far outside the field, out of every on-graph shortlist), the squared norm, a 1, and
+    its vertex index (graph) or 0. The product ``[p, |p|², 1] · [-2p, 1, |p|² + 2q]ᵀ / q`` then gives
+    every pair's squared distance in levels of q = (2·max|p|)² / levels (no pair exceeds the top
+    level, and the +2 keeps float32 rounding from going below 0) in one ``bmm`` into a scratch matrix
+    reused between calls. The levels are truncated to int32 in place and the column index is packed
+    below them (``key = level · B + column``), so ``neighbours + 1`` value-only ``amin`` passes find
+    the shortlist and the bound (``topk`` is ~10× slower). About ten passes over K·B² int32 values
+    in all; graph distances are read with the graph's unchecked vertex lookup.
 
     Args:
         metric: object with ``distance(a, b)`` on goals ``[..., 3]``.
@@ -346,7 +345,10 @@ class NearestNeighbours:
         self.metric = metric
         self.neighbours = neighbours
         self._snap = all(hasattr(metric, name) for name in ("vertex_index", "vertices", "distance_between_vertices"))
-        self._lattice: torch.Tensor | None = None
+        self._origin: torch.Tensor | None = None
+        self._lattice: torch.Tensor | None = None  # graph vertices relative to the origin
+        self._park: torch.Tensor | None = None  # where off-graph goals are put
+        self._reach = 0.0  # graph: the largest |p| of any point (the parking distance)
         self._scratch: dict[str, torch.Tensor] = {}
 
     @property
@@ -354,31 +356,66 @@ class NearestNeighbours:
         """Whether the metric is a graph whose goals are snapped to vertices (``vertex_index`` etc.)."""
         return self._snap
 
-    def __call__(
-        self, goals: torch.Tensor | None = None, *, vertex: torch.Tensor | None = None, stats: dict | None = None
-    ) -> torch.Tensor:
-        """Nearest-neighbour distances ``[K, B]`` of goals ``[K, B, 3]``.
+    def points(self, goals: torch.Tensor) -> torch.Tensor:
+        """float32 ``[..., 6]`` shortlist points of goals ``[..., 3]``: ``(x, y, z, |p|², 1, id)``.
 
-        For a graph metric the goals' ``vertex_index`` ``[K, B]`` may be given instead of (or with)
-        the goals; it must hold valid indices in ``[-1, num_vertices)`` (they are not checked).
+        ``p`` is the goal's lattice vertex (graph metrics; off-graph goals: a parking spot far outside
+        the field) or the goal itself, relative to a fixed origin (the field's centre, or the first
+        goals' mean); ``id`` is the vertex index (``-1`` off the graph) or 0.
         """
-        if goals is None and vertex is None:
-            raise ValueError("NearestNeighbours needs goals [K, B, 3] or (for a graph metric) their vertex indices")
-        k, b = vertex.shape if vertex is not None else goals.shape[:2]
+        goals = torch.as_tensor(goals)
+        if self._snap:
+            self._setup_graph()
+            vertex = self.metric.vertex_index(goals)
+            position = torch.where((vertex >= 0).unsqueeze(-1), self._lattice[vertex], self._park)
+            ident = vertex.float()  # exact: < 2**24 vertices
+        else:
+            goals = goals.float()
+            if not bool(torch.isfinite(goals).all()):
+                raise ValueError("goals must be finite for a metric without a graph (NaN or inf found)")
+            if self._origin is None:
+                self._origin = goals.reshape(-1, 3).mean(0) if goals.numel() else torch.zeros(3)
+            position = goals - self._origin
+            ident = torch.zeros(goals.shape[:-1])
+        norm = position.square().sum(-1, keepdim=True)
+        return torch.cat([position, norm, torch.ones_like(norm), ident.unsqueeze(-1)], -1)
+
+    def _setup_graph(self) -> None:
+        if self._lattice is not None:
+            return
+        metric = self.metric
+        vertices = torch.as_tensor(metric.vertices, dtype=torch.float32)
+        field = getattr(metric, "field", None)
+        if field is not None:
+            center, half = (torch.as_tensor(v, dtype=torch.float32) for v in field)
+        else:
+            low, high = vertices.min(0).values, vertices.max(0).values
+            center, half = (low + high) / 2, (high - low) / 2
+        self._origin = center
+        self._lattice = vertices - center
+        # Parked at 1.5 field diagonals: farther from every vertex than any two vertices are apart.
+        diagonal = 2.0 * float(half.norm())
+        self._reach = 1.5 * max(diagonal, 1e-3)
+        self._park = torch.tensor([self._reach, 0.0, 0.0])
+
+    def __call__(self, goals: torch.Tensor, *, stats: dict | None = None) -> torch.Tensor:
+        """Nearest-neighbour distances ``[K, B]`` of goals ``[K, B, 3]``."""
+        goals = torch.as_tensor(goals)
+        return self.from_points(self.points(goals), None if self._snap else goals, stats=stats)
+
+    def from_points(
+        self, points: torch.Tensor, goals: torch.Tensor | None = None, *, stats: dict | None = None
+    ) -> torch.Tensor:
+        """Nearest-neighbour distances ``[K, B]`` from the goals' :meth:`points` ``[K, B, 6]`` (made by this
+        object). A metric without a graph also needs the goals ``[K, B, 3]`` themselves."""
+        k, b = points.shape[:2]
         if b < 2:
             return torch.full((k, b), math.inf)
         metric = self.metric
         if self._snap:
-            if vertex is None:
-                vertex = metric.vertex_index(goals)  # [K, B], -1 off the graph
-            if self._lattice is None:
-                lattice = torch.as_tensor(metric.vertices, dtype=torch.float32)
-                self._lattice = lattice - lattice.mean(0)
+            self._setup_graph()
+            vertex = points[..., 5].long()  # [K, B], -1 off the graph
             off = vertex < 0
-            positions = self._lattice[vertex]  # -1 wraps to the last vertex; moved away just below
-            # Off-graph goals are inf away from everything: park them far apart, out of every shortlist.
-            far = _FAR * torch.arange(1, b + 1, dtype=positions.dtype)
-            positions[..., 0] = torch.where(off, far.expand(k, b), positions[..., 0])
             lookup = getattr(metric, "_pair_distance_unchecked", metric.distance_between_vertices)
             flat = vertex.view(-1)
 
@@ -389,8 +426,7 @@ class NearestNeighbours:
             tolerance = _BOUND_TOLERANCE + 0.5 * float(getattr(metric, "resolution", 0.0))
         else:
             if goals is None:
-                raise ValueError("NearestNeighbours: vertex indices need a graph metric; pass the goals [K, B, 3]")
-            positions = goals.float() - goals.float().mean(1, keepdim=True)
+                raise ValueError("NearestNeighbours.from_points: a metric without a graph needs the goals [K, B, 3]")
             off = None
 
             def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
@@ -408,16 +444,16 @@ class NearestNeighbours:
             distance.diagonal(dim1=-2, dim2=-1).fill_(math.inf)
             return distance.min(-1).values
 
-        cols, lower, keys, quantum = self._shortlist(positions, m)
+        cols, level, keys, quantum = self._shortlist(points, m)
         if self._snap:  # the same lookup as pair(rows, cols, batch), with fewer index operations
             candidates = vertex.gather(1, cols.view(k, b * m)).view(k, b, m)
-            nearest = lookup(vertex.unsqueeze(-1), candidates).min(-1).values  # [K, B]
+            nearest = lookup(vertex.unsqueeze(-1), candidates).amin(-1)  # [K, B]
         else:
-            nearest = pair(rows, cols, batch).min(-1).values  # [K, B]
+            nearest = pair(rows, cols, batch).amin(-1)  # [K, B]
         # Proven where the shortlist beats every goal outside it (a distance of 0, a duplicate goal,
         # always does). For the others, only goals whose Euclidean lower bound is below the best
         # distance so far can be nearer: score those (usually a handful) with the metric.
-        unproven = nearest > (lower - tolerance).clamp_(min=0.0)
+        unproven = nearest > _distance(level, quantum).sub_(tolerance).clamp_(min=0.0)
         if off is not None:
             unproven &= ~off
         if stats is not None:
@@ -426,8 +462,7 @@ class NearestNeighbours:
             kk, ii = unproven.nonzero(as_tuple=True)
             best = nearest[kk, ii]
             row = keys[kk, ii]  # [U, B]; the goal itself and its shortlist hold int32 max
-            bound = ((row // b).float() * quantum).sqrt_().sub_(tolerance)
-            bound.masked_fill_(row == _INT32_MAX, math.inf)
+            bound = _distance(row // b, quantum).sub_(tolerance).masked_fill_(row == _INT32_MAX, math.inf)
             uu, jj = (bound < best.unsqueeze(-1)).nonzero(as_tuple=True)
             if len(uu):
                 distance = pair(ii[uu], jj, kk[uu])
@@ -438,33 +473,48 @@ class NearestNeighbours:
     def _shortlist(
         self, points: torch.Tensor, m: int
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, float]:
-        """Each point's m Euclidean-nearest others ``[K, B, m]``, a lower bound on the distance to the rest
-        ``[K, B]``, and the int32 keys ``[K, B, B]`` (level · B + column; shortlisted and self: int32 max)
-        with the squared metres per level."""
+        """Each point's m Euclidean-nearest others ``[K, B, m]``, the level of the nearest of the rest
+        ``[K, B]`` (a lower bound on the squared distance to every goal outside the shortlist, see
+        :func:`_distance`), the int32 keys ``[K, B, B]`` (level · B + column; shortlisted and self: int32 max)
+        and the squared metres per level."""
         k, b, _ = points.shape
-        # Squared-distance levels: exact integers in float32 (< 2**24) that fit above the column index in int32.
-        levels = min((2**31 - 1) // b - 1, 2**24 - 1)
-        quantum = _CAP_SQUARED / levels  # m² per level
-        # Squared distances in levels from one product: [q_i, |q_i|², 1] · [-2 q_j, 1, |q_j|²] with q = p / √quantum.
-        scaled = points * (1.0 / math.sqrt(quantum))
-        norms = scaled.square().sum(-1, keepdim=True)
-        ones = torch.ones_like(norms)
-        left = torch.cat([scaled, norms, ones], -1)
-        right = torch.cat([scaled * -2.0, ones, norms], -1).transpose(1, 2).contiguous()  # bmm is faster so
+        levels = _INT32_MAX // b - 2 * _LEVEL_SLACK  # key = level · B + column stays below int32 max
+        # |p_i − p_j| ≤ 2·max|p|: no pair is above the top level, so no clamp is needed. For a graph
+        # max|p| is the parking distance; otherwise it is read from the points.
+        reach = self._reach if self._snap else float(points[..., 3].amax()) ** 0.5
+        quantum = max(4.0 * reach * reach, 1e-12) / levels
+        left = points[..., :5]  # [p, |p|², 1]
+        right = torch.matmul(self._product_map(quantum), left.transpose(1, 2))  # [K, 5, B]: [-2p, 1, |p|² + 2q] / q
         squared = self._buffer("squared", (k, b, b), torch.float32)
-        torch.bmm(left, right, out=squared).clamp_(0.0, levels)  # capped at _CAP_SQUARED: still a lower bound
+        torch.bmm(left, right, out=squared)  # squared distance in levels, + _LEVEL_SLACK
         # In place (same 4-byte slots, element by element: one scratch matrix, half the cache footprint).
         keys = squared.view(torch.int32)
-        keys.copy_(squared)  # truncation = floor for values >= 0: stays a lower bound
+        keys.copy_(squared)  # truncation: level + slack - 1 <= key level <= level + slack (float32 rounding < 1 level)
         torch.add(self._columns(b), keys, alpha=b, out=keys)  # key = level · B + column
         keys.diagonal(dim1=-2, dim2=-1).fill_(_INT32_MAX)
         cols = torch.empty(k, b, m, dtype=torch.long)
         for r in range(m):
-            nearest = keys.amin(-1)  # [K, B]
-            cols[..., r] = nearest % b
-            keys.scatter_(-1, cols[..., r : r + 1], _INT32_MAX)
-        level = keys.amin(-1) // b
-        return cols, (level.float() * quantum).sqrt_(), keys, quantum  # levels < 2**24: exact in float32
+            column = torch.remainder(keys.amin(-1, keepdim=True), b).long()  # [K, B, 1]
+            cols[..., r : r + 1] = column
+            keys.scatter_(-1, column, _INT32_MAX)
+        return cols, keys.amin(-1) // b, keys, quantum
+
+    def _product_map(self, quantum: float) -> torch.Tensor:
+        """``M`` with ``M · [p, |p|², 1]ᵀ = [-2p, 1, |p|² + slack·q]ᵀ / q`` (a 5 × 5 matrix)."""
+        cached = self._scratch.get("map")
+        if cached is not None and cached[0] == quantum:
+            return cached[1]
+        base = self._scratch.get("map_parts")
+        if base is None:
+            scaled = torch.zeros(5, 5)
+            scaled[[0, 1, 2], [0, 1, 2]] = -2.0
+            scaled[3, 4] = scaled[4, 3] = 1.0
+            constant = torch.zeros(5, 5)
+            constant[4, 4] = float(_LEVEL_SLACK)
+            base = self._scratch["map_parts"] = torch.stack([scaled, constant])
+        product = torch.add(base[1], base[0], alpha=1.0 / quantum)
+        self._scratch["map"] = (quantum, product)
+        return product
 
     def _columns(self, b: int) -> torch.Tensor:
         columns = self._scratch.get("columns")
@@ -477,6 +527,12 @@ class NearestNeighbours:
         if buffer is None or buffer.shape != shape:
             buffer = self._scratch[name] = torch.empty(shape, dtype=dtype)
         return buffer
+
+
+def _distance(level: torch.Tensor, quantum: float) -> torch.Tensor:
+    """A lower bound in metres on the distance of a pair whose key has this level: the level less the
+    slack and one more for float32 rounding (at least 0), times the quantum, square-rooted."""
+    return (level - (_LEVEL_SLACK + 1)).clamp_(min=0).float().mul_(quantum).sqrt_()
 
 
 def _check(distance: torch.Tensor, name: str) -> torch.Tensor:

@@ -45,7 +45,7 @@ class EnergySampler(Sampler):
         ...                                 batch_size=1000, generator=torch.Generator().manual_seed(0))
         >>> _ = buffer.extend(TensorDict({"energy": torch.tensor([0.0, 1.0, 3.0])}, [3]))
         >>> buffer.sample()["index"].bincount(minlength=3).tolist()  # about 0 : 250 : 750
-        [0, 264, 736]
+        [0, 254, 746]
     """
 
     def __init__(self, energy_key: NestedKey = "energy", epsilon: float = 0.0) -> None:
@@ -53,7 +53,7 @@ class EnergySampler(Sampler):
             raise ValueError(f"epsilon must be a finite number >= 0, got {epsilon!r}")
         self.energy_key = energy_key
         self.epsilon = float(epsilon)
-        self._cache: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None  # see _runs
+        self._cache: tuple[torch.Tensor, torch.Tensor, int] | None = None  # see _runs
 
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         return self.draw(storage, batch_size), {}
@@ -66,25 +66,26 @@ class EnergySampler(Sampler):
         """
         n = check_sampleable(storage, self)
         rng = generator(self)
-        cdf, start, length = self._runs(storage, n)
+        cdf, runs = self._runs(storage, n)
         total = cdf[-1]
         if total <= 0:  # no episode has energy yet: uniform
             return torch.randint(n, shape, generator=rng).sort(-1).values
-        u = _sorted_uniform(shape, rng).mul_(total)
+        u = torch.rand(shape, dtype=torch.float64, generator=rng).mul_(total)
         # The run whose cumulative energy first exceeds u (zero-energy runs are never chosen), then
         # a row of that run by where u falls inside it: uniform, as the run's rows weigh the same.
         run = torch.searchsorted(cdf, u, right=True).clamp_(max=len(cdf) - 1)
-        below = torch.where(run > 0, cdf[(run - 1).clamp_(min=0)], 0.0)
-        within = ((u - below) / (cdf[run] - below) * length[run]).long()
-        return start[run] + within.clamp_(min=0).minimum(length[run] - 1)
+        below, weight, start, length = runs.index_select(0, run.view(-1)).view(*shape, 4).unbind(-1)
+        within = torch.minimum(u.sub_(below).div_(weight).mul_(length).clamp_(min=0), length - 1, out=u)
+        return start.add_(within).long().sort(-1).values
 
-    def _runs(self, storage: Storage, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Runs of equal consecutive energies (an episode's (k+1)·T rows): cumulative weight, first row, length.
+    def _runs(self, storage: Storage, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Runs of equal consecutive energies (an episode's (k+1)·T rows): the cumulative weights ``[R]``
+        and, per run, ``(weight before it, its weight, first row, length)`` as float64 ``[R, 4]``.
 
         Searching ~one entry per episode instead of one per transition keeps the table small and
         in cache (2.5 M rows of 5,000 episodes: 5,000 runs).
         """
-        if self._cache is None or self._cache[1][-1] + self._cache[2][-1] != n:
+        if self._cache is None or self._cache[2] != n:
             energy = read_field(storage, self.energy_key, None, self).reshape(n, -1)
             if energy.shape[1] != 1:
                 raise ValueError(
@@ -97,9 +98,11 @@ class EnergySampler(Sampler):
             change[1:] = energy[1:] != energy[:-1]
             start = change.nonzero().squeeze(-1)
             length = torch.diff(start, append=torch.tensor([n]))
-            cdf = ((energy[start] + self.epsilon) * length).cumsum(0)
-            self._cache = (cdf, start, length)
-        return self._cache
+            weight = (energy[start] + self.epsilon) * length
+            cdf = weight.cumsum(0)
+            runs = torch.stack([cdf - weight, weight.clamp(min=1e-300), start.double(), length.double()], -1)
+            self._cache = (cdf, runs, n)
+        return self._cache[0], self._cache[1]
 
     # Writes invalidate the cached cumulative energies.
     def extend(self, index: torch.Tensor) -> None:
@@ -132,10 +135,3 @@ class EnergySampler(Sampler):
     def __repr__(self) -> str:
         return f"{type(self).__name__}(energy_key={self.energy_key!r}, epsilon={self.epsilon})"
 
-
-def _sorted_uniform(shape: tuple[int, ...], rng: torch.Generator) -> torch.Tensor:
-    """float64 U(0, 1) draws, sorted along the last dimension, without a sort: the order statistics
-    of m uniforms are the normalised partial sums S_1 … S_m of m + 1 Exp(1) draws, divided by S_{m+1}."""
-    *lead, m = shape
-    sums = torch.empty(*lead, m + 1, dtype=torch.float64).exponential_(generator=rng).cumsum_(-1)
-    return sums[..., :-1] / sums[..., -1:]  # out of place: contiguous, as searchsorted wants
