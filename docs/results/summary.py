@@ -2,7 +2,8 @@
 
 Each ``<env>-<algo>.csv`` is a run's ``metrics.csv``. Prints, per run: iterations, env steps, the
 success rate at a few iterations, the first iteration at or above 0.5 and 0.9, the best and last
-success rate, and (for HGG-style runs) the iteration at which intermediate goals stopped. With
+success rate, the hours spent in the timed phases (goals, rollout, store, update, eval,
+checkpoint) and, for HGG-style runs, the iteration at which intermediate goals stopped. With
 ``--plot FILE.png`` draws success rate against iteration for every run of each task.
 
 Run: ``python docs/results/summary.py --plot docs/results/curves.png``
@@ -40,6 +41,10 @@ def summarise(name: str, run: dict[str, list[float]]) -> None:
     line = (f"{name}: {len(iterations)} iterations, {int(run['env_steps'][-1]):,} env steps; success at {marks}; "
             f"first >= 0.5 at {first_at(success, iterations, 0.5)}, >= 0.9 at {first_at(success, iterations, 0.9)}; "
             f"best {max(success):.2f}, last {success[-1]:.2f}")
+    phases = [key for key in run if key.startswith("seconds_")]
+    if phases:
+        hours = sum(v for key in phases for v in run[key] if v == v) / 3600  # v == v: skip blanks (NaN)
+        line += f"; {hours:.1f} h in the timed phases"
     stopped = run.get("stopped")
     if stopped is not None and any(stopped) and run.get("d_g") and any(run["d_g"]):
         line += f"; stop condition met at iteration {int(iterations[stopped.index(1.0)])} (target goals from then on)"
