@@ -170,7 +170,9 @@ def speed(episodes: int, rounds: int) -> None:
         seconds = statistics.median(values)
         print(f"  {name:26s} {seconds * 1e3:9.3f} ms   {seconds / uniform:8.1f} x uniform   "
               f"(sampler alone {statistics.median(alone[name]) * 1e3:.3f} ms)")
-    print(f"  (CHER: {statistics.median(times['CHER greedy (pool 5,000)']) * 1000:.0f} s per 1,000-update iteration)")
+    per_iteration = ", ".join(f"{name.split(' (')[0]} {statistics.median(times[name]) * 1000:.1f} s"
+                              for name in ("graph curriculum K=8", "CHER greedy (pool 5,000)"))
+    print(f"  (per 1,000-update iteration: {per_iteration})")
     shortlist_check(storage, graph, generator)
 
 

@@ -500,21 +500,15 @@ class NearestNeighbours:
         return cols, keys.amin(-1) // b, keys, quantum
 
     def _product_map(self, quantum: float) -> torch.Tensor:
-        """``M`` with ``M · [p, |p|², 1]ᵀ = [-2p, 1, |p|² + slack·q]ᵀ / q`` (a 5 × 5 matrix)."""
+        """``M`` with ``M · [p, |p|², 1]ᵀ = [-2p, 1, |p|² + slack·q]ᵀ / q`` (a 5 × 5 matrix, kept per quantum)."""
         cached = self._scratch.get("map")
-        if cached is not None and cached[0] == quantum:
-            return cached[1]
-        base = self._scratch.get("map_parts")
-        if base is None:
-            scaled = torch.zeros(5, 5)
-            scaled[[0, 1, 2], [0, 1, 2]] = -2.0
-            scaled[3, 4] = scaled[4, 3] = 1.0
-            constant = torch.zeros(5, 5)
-            constant[4, 4] = float(_LEVEL_SLACK)
-            base = self._scratch["map_parts"] = torch.stack([scaled, constant])
-        product = torch.add(base[1], base[0], alpha=1.0 / quantum)
-        self._scratch["map"] = (quantum, product)
-        return product
+        if cached is None or cached[0] != quantum:
+            product = torch.zeros(5, 5)
+            product[[0, 1, 2], [0, 1, 2]] = -2.0 / quantum
+            product[3, 4] = product[4, 3] = 1.0 / quantum
+            product[4, 4] = float(_LEVEL_SLACK)
+            cached = self._scratch["map"] = (quantum, product)
+        return cached[1]
 
     def _columns(self, b: int) -> torch.Tensor:
         columns = self._scratch.get("columns")
