@@ -78,6 +78,27 @@ def test_ebp_uniform_without_energy_and_refreshed_after_writes():
     assert ((index >= 100) & (index < 200)).all()
 
 
+def test_ebp_draw_is_the_inverse_cdf_of_the_rows_even_with_crowded_guide_bins():
+    # 300 episodes of 5 rows: one holds almost all the energy, the others are tiny or zero, so the
+    # guide table's bins crowd with run boundaries and the binary-search fallback is used too.
+    g = torch.Generator().manual_seed(3)
+    episode = torch.rand(300, generator=g, dtype=torch.float64) * 1e-6
+    episode[::7] = 0.0
+    episode[150] = 1.0
+    energy = episode.repeat_interleave(5)
+    storage = LazyTensorStorage(2000)
+    storage.set(torch.arange(1500), TensorDict({"energy": energy.float()}, [1500]))
+    sampler = EnergySampler()
+    sampler._rng = torch.Generator().manual_seed(7)
+    index = sampler.draw(storage, 64, 256)
+    u = torch.rand(64, 256, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
+    cdf = energy.float().double().cumsum(0)
+    expected = torch.searchsorted(cdf, u * cdf[-1], right=True)  # the row whose cumulative energy passes u
+    assert (index == expected).double().mean() > 0.999
+    assert (energy.float()[index] > 0).all()
+    assert ((index >= 750) & (index < 755)).double().mean() > 0.99
+
+
 def test_ebp_rejects_negative_energy():
     buffer = make_buffer(EnergySampler(), goal_transitions(10, energy=-torch.ones(10)))
     with pytest.raises(ValueError, match="finite and >= 0"):
@@ -141,12 +162,13 @@ def random_goals(k: int, b: int, seed: int) -> torch.Tensor:
 
 
 @pytest.mark.parametrize("neighbours", [1, 2, 5])
-def test_shortlist_nearest_neighbours_are_exact(graph, neighbours):
+@pytest.mark.parametrize("block", [32, 6])  # one window of all 70 goals; 12 blocks (2 padding rows)
+def test_shortlist_nearest_neighbours_are_exact(graph, neighbours, block):
     for seed in range(3):
-        goals = random_goals(4, 64, seed)
+        goals = random_goals(4, 70, seed)
         for metric in (graph, EuclideanMetric()):
             stats: dict = {}
-            fast = nearest_neighbour_distances(goals, metric, neighbours, stats=stats)
+            fast = nearest_neighbour_distances(goals, metric, neighbours, block=block, stats=stats)
             exact = nearest_neighbour_distances(goals, metric, None)
             assert not torch.isnan(fast).any()
             assert torch.equal(torch.isinf(fast), torch.isinf(exact))
@@ -165,6 +187,20 @@ def test_off_graph_goals_never_make_nan(graph):
         assert torch.isfinite(batch[key]).all(), key
     nearest = nearest_neighbour_distances(data["desired_goal"][None, ::3][:, :50], graph)
     assert torch.isinf(nearest).all()
+
+
+def test_curriculum_drops_candidates_drawn_before_a_write_and_reads_lambda_at_each_sample():
+    tradeoff = AdaptiveTradeoff(initial=5.0)
+    sampler = GraphCurriculumSampler(EuclideanMetric(), num_candidates=4, tradeoff=tradeoff,
+                                     energy_key="energy", draw_ahead=4)
+    first_half = (torch.arange(100) < 50).float()
+    buffer = make_buffer(sampler, goal_transitions(100, energy=first_half), size=100)
+    assert (buffer.sample()["index"] < 50).all()
+    tradeoff.update(distance=0.0)  # λ changes between two samples of the same draw
+    assert buffer.sample()["tradeoff"][0].item() == pytest.approx(tradeoff.value)
+    # The full buffer is overwritten (same length): now only the second half has energy.
+    buffer.extend(goal_transitions(100, seed=1, energy=1.0 - first_half))
+    assert (buffer.sample()["index"] >= 50).all()
 
 
 def test_curriculum_with_ebp_draws_only_energetic_rows(graph):

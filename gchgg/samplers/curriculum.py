@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,19 @@ _BOUND_TOLERANCE = 1e-3  # metres: slack on the Euclidean lower bound (float32 r
 _LEVEL_SLACK = 2  # levels added to every squared distance so float32 rounding never makes one negative
 _TO_TARGET = 6  # column of the goal-to-target distance in the sampler's per-row cache (after the point)
 _INT32_MAX = 2**31 - 1
+_SWAP = torch.tensor([0, 1, 2, 4, 3])  # point columns (x, y, z, |p|², 1) -> (x, y, z, 1, |p|²)
+
+
+@dataclass
+class _Pool:
+    """Scored candidate batches of the next samples: indices ``[A, K, B]``, F_div and F_prox ``[A, K]``."""
+
+    index: torch.Tensor
+    diversity: torch.Tensor
+    proximity: torch.Tensor
+    batch_size: int
+    stored: int  # len(storage) when drawn
+    next: int = 0
 
 
 class GraphCurriculumSampler(Sampler):
@@ -48,20 +62,29 @@ class GraphCurriculumSampler(Sampler):
     finite nearest neighbour contributes 0 (an off-graph goal adds no diversity).
 
     Nearest neighbours (F_div). The K·B² pairs are never all scored with the metric (a full
-    256 × 256 graph-table gather per candidate would be random reads into a ~100 MB table). For each
-    candidate, one batched matrix product gives the B goals' squared Euclidean distances, and
-    ``neighbours + 1`` minimum passes give every goal a shortlist of its ``neighbours``
-    Euclidean-nearest goals; the metric is read for those K·B·neighbours pairs only. The shortlist
-    is *exact*: for a metric that is never shorter than the straight line, every goal outside the
-    shortlist is at least the (neighbours+1)-th Euclidean distance away, so where the shortlist's
-    best metric distance is within that bound the nearest neighbour is proven; for the few goals
-    where it is not (typically beside an obstacle) the metric is also read for every goal whose
-    Euclidean lower bound is below the best distance found. For a :class:`~gchgg.graph.GoalGraph`
-    (any metric with ``vertex_index``, ``vertices`` and ``distance_between_vertices``) the straight
-    lines are measured between the goals' lattice vertices, which the graph distance never
-    undercuts (up to its table's rounding), and each goal is snapped once. A metric shorter than
-    the straight line makes the shortlist approximate; ``neighbours=None`` scores all pairs (exact
-    for any metric). See :class:`NearestNeighbours`.
+    256 × 256 graph-table gather per candidate would be random reads into a ~100 MB table). Each
+    candidate's goals are sorted along the field's longest axis and compared, in blocks, with
+    their 3 · 32 neighbours in that order (one batched matrix product of squared Euclidean
+    distances and ``neighbours + 1`` minimum passes), which gives every goal a shortlist of its
+    ``neighbours`` Euclidean-nearest goals there; the metric is read for those K·B·neighbours pairs
+    only. The shortlist is *exact*: for a metric that is never shorter than the straight line,
+    every other goal is at least the next Euclidean distance in the block window, or the gap along
+    the axis to the window's edge, away; where the shortlist's best metric distance is within that
+    bound the nearest neighbour is proven, and for the few goals where it is not (beside an
+    obstacle, or in a sparse stretch) the metric is also read for every goal nearer in a straight
+    line than the best distance found. For a :class:`~gchgg.graph.GoalGraph` (any metric with
+    ``vertex_index``, ``vertices`` and ``distance_between_vertices``) the straight lines are
+    measured between the goals' lattice vertices, which the graph distance never undercuts (up to
+    its table's rounding), and each goal is snapped once. A metric shorter than the straight line
+    makes the shortlist approximate; ``neighbours=None`` scores all pairs (exact for any metric).
+    See :class:`NearestNeighbours`.
+
+    Drawing ahead. The candidates of the next ``draw_ahead`` samples are drawn and scored in one
+    go (F_div and F_prox do not depend on λ), and each ``sample`` picks its best candidate with the
+    λ of that moment; any write to the buffer (``extend``/``add``/``mark_update``) drops the
+    candidates drawn before it, so every batch comes from the buffer as it is when sampled. This
+    spreads the fixed cost of the many small tensor operations of a draw over the samples; the
+    draws are the same i.i.d. draws, and the same generator seed gives the same indices.
 
     Per-row cache. Each stored row's shortlist point (the goal's lattice vertex relative to the
     field's centre, its squared norm and its vertex index; see :meth:`NearestNeighbours.points`) and
@@ -73,12 +96,12 @@ class GraphCurriculumSampler(Sampler):
     ``buffer[index] = ...``, or another buffer writing into a full shared storage) keep stale
     entries until reported with ``sampler.mark_update(index)``.
 
-    Cost per ``sample``: an EBP or uniform draw of K·B rows (O(K·B log n)), one read of K·B cached
-    rows, K·B²·5 multiply-adds (one batched product) and about ten passes over the K·B² int32
-    keys, K·B·neighbours unchecked table reads and a few more per unproven goal, and ~60 small
-    tensor operations. On push_new (``benchmarks/samplers.py``: 5,000 episodes, graph
-    31 × 31 × 11) about 1 % of the goals are unproven and the shortlist always equals the all-pairs
-    value; the time is printed there as a ratio to uniform sampling.
+    Cost per ``sample`` (amortised over ``draw_ahead``): an EBP or uniform draw of K·B rows (O(1)
+    each), one read of K·B cached rows, a sort of K·B goals, K·B·96·5 multiply-adds and about ten
+    passes over K·B·96 int32 keys, K·B·neighbours unchecked table reads and a few more per unproven
+    goal. On push_new (``benchmarks/samplers.py``: 5,000 episodes, graph 31 × 31 × 11) about 2 %
+    of the goals are unproven and the shortlist always equals the all-pairs value; the time is
+    printed there as a ratio to uniform sampling.
 
     Args:
         metric: object with ``distance(a, b)`` on goals ``[..., 3]`` → ``[...]`` (``GoalGraph`` for
@@ -98,6 +121,8 @@ class GraphCurriculumSampler(Sampler):
             Default 3.
         unreachable_distance: metres an unreachable goal counts in F_prox; ``None`` (default) as
             described above.
+        draw_ahead: samples whose candidates are drawn and scored together (≥ 1; see "Drawing
+            ahead"). Default 8.
 
     Example:
         >>> import torch
@@ -133,6 +158,7 @@ class GraphCurriculumSampler(Sampler):
         diversity_metric=None,
         neighbours: int | None = 3,
         unreachable_distance: float | None = None,
+        draw_ahead: int = 8,
     ) -> None:
         for name, m in (("metric", metric), ("diversity_metric", diversity_metric)):
             if m is not None and not callable(getattr(m, "distance", None)):
@@ -149,6 +175,8 @@ class GraphCurriculumSampler(Sampler):
             and unreachable_distance >= 0
         ):
             raise ValueError(f"unreachable_distance must be a finite number >= 0 or None, got {unreachable_distance!r}")
+        if isinstance(draw_ahead, bool) or not isinstance(draw_ahead, int) or draw_ahead < 1:
+            raise ValueError(f"draw_ahead must be an integer >= 1 (samples scored together), got {draw_ahead!r}")
         self.metric = metric
         self.diversity_metric = metric if diversity_metric is None else diversity_metric
         self.num_candidates = num_candidates
@@ -157,12 +185,14 @@ class GraphCurriculumSampler(Sampler):
         self.target_key = target_key
         self.energy_key = energy_key
         self.unreachable_distance = unreachable_distance
+        self.draw_ahead = draw_ahead
         self._energy = EnergySampler(energy_key) if energy_key is not None else None
         self._nearest = NearestNeighbours(self.diversity_metric, neighbours)
         # Per stored row: goal vertex and goal-to-target distance, valid for rows < _known not in _pending.
         self._rows: torch.Tensor | None = None
         self._known = 0
         self._pending: list[torch.Tensor] = []
+        self._pool: _Pool | None = None  # scored candidates of the next samples, dropped at every write
 
     @property
     def neighbours(self) -> int | None:
@@ -175,35 +205,51 @@ class GraphCurriculumSampler(Sampler):
 
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         n = check_sampleable(storage, self)
-        rng = generator(self)
-        k, b = self.num_candidates, batch_size
-        if self._energy is not None:
-            self._energy._rng = rng
-            index = self._energy.draw(storage, k, b)
-        else:
-            index = torch.randint(n, (k, b), generator=rng).sort(-1).values  # sorted: cache-friendly reads
-        rows = self._stored_rows(storage, index, n)  # [K, B, 7]: shortlist point (6), goal-to-target distance
-        lam = float(self.tradeoff.value)
-        goals = None if self._nearest.snaps else read_field(storage, self.goal_key, index, self)
-        nearest = self._nearest.from_points(rows[..., :_TO_TARGET], goals)
-        proximity = -self._finite(rows[..., _TO_TARGET]).sum(-1)  # eq. 15 with C = 0
-        diversity = nearest.nan_to_num(posinf=0.0).sum(-1)  # eq. 19: no finite neighbour adds nothing
+        pool = self._pool
+        if (
+            pool is None
+            or pool.next == len(pool.index)
+            or (pool.batch_size, pool.stored, pool.index.shape[1]) != (batch_size, n, self.num_candidates)
+        ):
+            pool = self._pool = self._score(storage, n, batch_size)
+        ahead, pool.next = pool.next, pool.next + 1
+        lam = float(self.tradeoff.value)  # read now: λ may change between samples of one pool
+        diversity, proximity = pool.diversity[ahead], pool.proximity[ahead]
         best = int(torch.argmax(diversity + lam * proximity))
         info = {
             "diversity": diversity[best],
             "proximity": proximity[best],
             "tradeoff": torch.tensor(lam, dtype=torch.float32),
         }
-        return index[best], info
+        return pool.index[ahead, best], info
+
+    def _score(self, storage: Storage, n: int, b: int) -> _Pool:
+        """Draw and score the candidate batches of the next ``draw_ahead`` samples."""
+        rng = generator(self)
+        a, k = self.draw_ahead, self.num_candidates
+        if self._energy is not None:
+            self._energy._rng = rng
+            index = self._energy.draw(storage, a * k, b).view(a, k, b)
+        else:
+            index = torch.randint(n, (a, k, b), generator=rng)
+        rows = self._stored_rows(storage, index, n)  # [A, K, B, 7]: shortlist point (6), goal-to-target distance
+        goals = None
+        if not self._nearest.snaps:
+            goals = read_field(storage, self.goal_key, index, self).reshape(a * k, b, -1)
+        nearest = self._nearest.from_points(rows[..., :_TO_TARGET].reshape(a * k, b, _TO_TARGET), goals)
+        diversity = nearest.nan_to_num(posinf=0.0).sum(-1).view(a, k)  # eq. 19: no finite neighbour adds nothing
+        proximity = -self._finite(rows[..., _TO_TARGET]).sum(-1)  # eq. 15 with C = 0, [A, K]
+        return _Pool(index, diversity, proximity, b, n)
 
     def _finite(self, distance: torch.Tensor) -> torch.Tensor:
+        """Goal-to-target distances ``[A, K, B]`` with ``inf`` replaced (per sample: its K·B draws)."""
         finite = torch.isfinite(distance)
         if bool(finite.all()):
             return distance
         if self.unreachable_distance is not None:
-            fill = self.unreachable_distance
-        else:
-            fill = distance[finite].max().item() if bool(finite.any()) else 0.0
+            fill = torch.tensor(float(self.unreachable_distance))
+        else:  # the largest finite distance of the sample's draws (0 if there is none)
+            fill = distance.masked_fill(~finite, -math.inf).amax((1, 2), keepdim=True).clamp_(min=0.0)
         return torch.where(finite, distance, fill)
 
     def _stored_rows(self, storage: Storage, index: torch.Tensor, n: int) -> torch.Tensor:
@@ -236,7 +282,9 @@ class GraphCurriculumSampler(Sampler):
         cache[fresh, _TO_TARGET] = _check(self.metric.distance(goals, targets), "metric")
 
     def _forget(self, index) -> None:
-        """Mark (re)written rows: their cache entries are recomputed at the next sample."""
+        """Mark (re)written rows: their cache entries are recomputed at the next sample, and candidates
+        drawn before the write are dropped."""
+        self._pool = None
         if self._rows is None:
             return
         if isinstance(index, (int, torch.Tensor, np.ndarray)) and not torch.as_tensor(index).is_floating_point():
@@ -261,7 +309,7 @@ class GraphCurriculumSampler(Sampler):
             self._energy.mark_update(index)
 
     def _empty(self) -> None:
-        self._rows, self._known, self._pending = None, 0, []
+        self._rows, self._known, self._pending, self._pool = None, 0, [], None
         if self._energy is not None:
             self._energy._empty()
 
@@ -270,6 +318,7 @@ class GraphCurriculumSampler(Sampler):
             num_candidates=self.num_candidates,
             neighbours=self.neighbours,
             unreachable_distance=self.unreachable_distance,
+            draw_ahead=self.draw_ahead,
             tradeoff=dict(self.tradeoff.state_dict()),
         )
 
@@ -277,6 +326,7 @@ class GraphCurriculumSampler(Sampler):
         self.num_candidates = int(state_dict["num_candidates"])
         self.neighbours = None if state_dict["neighbours"] is None else int(state_dict["neighbours"])
         self.unreachable_distance = state_dict["unreachable_distance"]
+        self.draw_ahead = int(state_dict.get("draw_ahead", self.draw_ahead))
         self.tradeoff.load_state_dict(state_dict["tradeoff"])
         self._empty()
 
@@ -294,7 +344,7 @@ class GraphCurriculumSampler(Sampler):
 
 
 def nearest_neighbour_distances(
-    goals: torch.Tensor, metric, neighbours: int | None = 3, *, stats: dict | None = None
+    goals: torch.Tensor, metric, neighbours: int | None = 3, *, block: int = 32, stats: dict | None = None
 ) -> torch.Tensor:
     """Metric distance from each goal to its nearest other goal of the same batch: min_{j≠i} d(g_i, g_j).
 
@@ -304,52 +354,61 @@ def nearest_neighbour_distances(
         goals: ``[K, B, 3]``: K batches of B goals.
         metric: object with ``distance(a, b)``.
         neighbours: shortlist length, ``None`` for all pairs.
+        block: goals per block of the shortlist search (see :class:`NearestNeighbours`).
         stats: if given, ``stats["rescored"]`` is set to the number of goals the shortlist did not
             prove (for which the goals within the Euclidean bound were read too).
 
     Returns:
         float32 ``[K, B]``, ``inf`` where a goal has no finite distance to any other (or B = 1).
     """
-    return NearestNeighbours(metric, neighbours)(goals, stats=stats)
+    return NearestNeighbours(metric, neighbours, block)(goals, stats=stats)
 
 
 class NearestNeighbours:
     """Exact nearest-neighbour metric distances within batches of goals, via a Euclidean shortlist.
 
-    For each goal the ``neighbours`` Euclidean-nearest goals of its batch are found from one
-    ``[K, B, B]`` matrix of squared distances (a batched matrix product) and only those pairs are
-    read from the metric. The (neighbours+1)-th Euclidean distance bounds every other pair from
-    below, so a shortlist minimum within that bound is the exact nearest neighbour for any metric
-    never shorter than the straight line; for the other goals, every goal whose bound is below the
-    best distance found is read too. Graph metrics (with ``vertex_index``, ``vertices`` and
-    ``distance_between_vertices``) are measured between the goals' lattice vertices, which their
-    distance never undercuts (up to the table's rounding, ``resolution / 2``).
-
     Each goal becomes a *point* once (:meth:`points`, which a sampler can cache per stored row):
-    its position relative to a fixed origin (the lattice vertex for a graph; off-graph goals parked
-    together far outside the field, out of every on-graph shortlist), the squared norm, a 1, and
-    its vertex index (graph) or 0. The product ``[p, |p|², 1] · [-2p, 1, |p|² + 2q]ᵀ / q`` then gives
-    every pair's squared distance in levels of q = (2·max|p|)² / levels (no pair exceeds the top
-    level, and the +2 keeps float32 rounding from going below 0) in one ``bmm`` into a scratch matrix
-    reused between calls. The levels are truncated to int32 in place and the column index is packed
-    below them (``key = level · B + column``), so ``neighbours + 1`` value-only ``amin`` passes find
-    the shortlist and the bound (``topk`` is ~10× slower). About ten passes over K·B² int32 values
-    in all; graph distances are read with the graph's unchecked vertex lookup.
+    its position relative to a fixed origin (the lattice vertex for a graph metric, whose
+    distance never undercuts the straight line between vertices; off-graph goals parked together
+    far outside the field), the squared norm, a 1, and its vertex index (graph) or 0.
+
+    Per batch of B goals: the goals are sorted along the field's longest axis and cut into blocks
+    of ``block`` consecutive goals; each block is compared with itself and its two neighbouring
+    blocks (a window of ``3 · block`` goals; all B goals when B ≤ 3 · block). One batched matrix
+    product ``[p, |p|², 1] · [-2p, 1, |p|² + 2q]ᵀ / q`` gives the window's squared distances in
+    levels of q = (2·max|p|)² / levels (the +2 keeps float32 rounding above 0); they are truncated
+    to int32 in place with the window column packed below (``key = level · W + column``), so
+    ``neighbours + 1`` value-only ``amin`` passes give each goal its ``neighbours`` nearest goals in
+    the window and the level of the next one (faster than ``topk`` here). Only those pairs are read
+    from the metric. A goal outside the shortlist is at least ``min(next level, gap)`` away, where
+    the gap is the distance along the sort axis to the nearest goal outside the window; where the
+    shortlist's best metric distance is within that bound it is the exact nearest neighbour (for
+    any metric never shorter than the straight line), and for the few other goals the metric is
+    also read for every goal whose straight-line distance is below the best distance found.
+
+    Cost for K batches: K·B·3·block·5 multiply-adds and about ten passes over K·B·3·block int32
+    keys (786 KB for K = 8, B = 256, block = 32: in the core's L2 cache, where all K·B² keys
+    would not be), K·B·neighbours metric reads, and a few more per unproven goal.
 
     Args:
         metric: object with ``distance(a, b)`` on goals ``[..., 3]``.
         neighbours: shortlist length ≥ 1, or ``None`` to score all pairs with the metric.
+        block: goals per block (≥ 2); batches of at most ``3 · block`` goals are one block.
     """
 
-    def __init__(self, metric, neighbours: int | None = 3) -> None:
+    def __init__(self, metric, neighbours: int | None = 3, block: int = 32) -> None:
+        if isinstance(block, bool) or not isinstance(block, int) or block < 2:
+            raise ValueError(f"block must be an integer >= 2, got {block!r}")
         self.metric = metric
         self.neighbours = neighbours
+        self.block = block
         self._snap = all(hasattr(metric, name) for name in ("vertex_index", "vertices", "distance_between_vertices"))
         self._origin: torch.Tensor | None = None
+        self._axis = 0  # the coordinate goals are sorted by: the field's longest (graph) or widest-spread one
         self._lattice: torch.Tensor | None = None  # graph vertices relative to the origin
         self._park: torch.Tensor | None = None  # where off-graph goals are put
         self._reach = 0.0  # graph: the largest |p| of any point (the parking distance)
-        self._scratch: dict[str, torch.Tensor] = {}
+        self._scratch: dict[Any, Any] = {}
 
     @property
     def snaps(self) -> bool:
@@ -374,7 +433,9 @@ class NearestNeighbours:
             if not bool(torch.isfinite(goals).all()):
                 raise ValueError("goals must be finite for a metric without a graph (NaN or inf found)")
             if self._origin is None:
-                self._origin = goals.reshape(-1, 3).mean(0) if goals.numel() else torch.zeros(3)
+                flat = goals.reshape(-1, 3)
+                self._origin = flat.mean(0) if len(flat) else torch.zeros(3)
+                self._axis = int(flat.std(0).argmax()) if len(flat) > 1 else 0
             position = goals - self._origin
             ident = torch.zeros(goals.shape[:-1])
         norm = position.square().sum(-1, keepdim=True)
@@ -392,11 +453,14 @@ class NearestNeighbours:
             low, high = vertices.min(0).values, vertices.max(0).values
             center, half = (low + high) / 2, (high - low) / 2
         self._origin = center
+        self._axis = int(half.argmax())
         self._lattice = vertices - center
-        # Parked at 1.5 field diagonals: farther from every vertex than any two vertices are apart.
+        # Parked at 1.5 field diagonals along the sort axis: farther from every vertex than any two
+        # vertices are apart, and sorted after all of them.
         diagonal = 2.0 * float(half.norm())
         self._reach = 1.5 * max(diagonal, 1e-3)
-        self._park = torch.tensor([self._reach, 0.0, 0.0])
+        self._park = torch.zeros(3)
+        self._park[self._axis] = self._reach
 
     def __call__(self, goals: torch.Tensor, *, stats: dict | None = None) -> torch.Tensor:
         """Nearest-neighbour distances ``[K, B]`` of goals ``[K, B, 3]``."""
@@ -411,116 +475,197 @@ class NearestNeighbours:
         k, b = points.shape[:2]
         if b < 2:
             return torch.full((k, b), math.inf)
-        metric = self.metric
-        if self._snap:
-            self._setup_graph()
-            vertex = points[..., 5].long()  # [K, B], -1 off the graph
-            off = vertex < 0
-            lookup = getattr(metric, "_pair_distance_unchecked", metric.distance_between_vertices)
-            flat = vertex.view(-1)
-
-            def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
-                # Goal ``rows`` to goals ``cols`` (indices within candidate ``batch``), broadcasting.
-                return lookup(flat[batch * b + rows], flat[batch * b + cols])
-
-            tolerance = _BOUND_TOLERANCE + 0.5 * float(getattr(metric, "resolution", 0.0))
-        else:
-            if goals is None:
-                raise ValueError("NearestNeighbours.from_points: a metric without a graph needs the goals [K, B, 3]")
-            off = None
-
-            def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
-                return _check(metric.distance(goals[batch, rows], goals[batch, cols]), "diversity metric")
-
-            tolerance = _BOUND_TOLERANCE
-
-        batch = torch.arange(k).view(k, 1, 1)
-        rows = torch.arange(b).view(1, b, 1)
+        if not self._snap and goals is None:
+            raise ValueError("NearestNeighbours.from_points: a metric without a graph needs the goals [K, B, 3]")
         m = self.neighbours
         if m is None or m >= b - 1:  # all pairs
             if stats is not None:
                 stats["rescored"] = 0
-            distance = pair(rows, torch.arange(b).view(1, 1, b), batch).clone()
+            distance = self._pairs(points, goals)(
+                torch.arange(b).view(1, b, 1), torch.arange(b).view(1, 1, b), torch.arange(k).view(k, 1, 1)
+            ).clone()
             distance.diagonal(dim1=-2, dim2=-1).fill_(math.inf)
             return distance.min(-1).values
 
-        cols, level, keys, quantum = self._shortlist(points, m)
+        if self._snap:
+            self._setup_graph()
+        # Sorted along the axis, neighbours in space are mostly neighbours in the order.
+        order = torch.from_numpy(np.argsort(points[..., self._axis].numpy(), -1))  # faster than torch's here
+        points = points.gather(1, order.unsqueeze(-1).expand(points.shape))
+        if goals is not None and not self._snap:
+            goals = goals.gather(1, order.unsqueeze(-1).expand(k, b, goals.shape[-1]))
+        pair = self._pairs(points, goals)
+        cols, bound = self._shortlist(points, m)  # sorted positions [K, B, m], lower bound [K, B] on the rest
         if self._snap:  # the same lookup as pair(rows, cols, batch), with fewer index operations
-            candidates = vertex.gather(1, cols.view(k, b * m)).view(k, b, m)
-            nearest = lookup(vertex.unsqueeze(-1), candidates).amin(-1)  # [K, B]
+            vertex = points[..., 5].long()
+            candidates = vertex.gather(1, cols.reshape(k, b * m)).view(k, b, m)
+            nearest = self._lookup(vertex.unsqueeze(-1), candidates).amin(-1)  # [K, B]
         else:
-            nearest = pair(rows, cols, batch).amin(-1)  # [K, B]
+            nearest = pair(torch.arange(b).view(1, b, 1), cols, torch.arange(k).view(k, 1, 1)).amin(-1)
         # Proven where the shortlist beats every goal outside it (a distance of 0, a duplicate goal,
-        # always does). For the others, only goals whose Euclidean lower bound is below the best
-        # distance so far can be nearer: score those (usually a handful) with the metric.
-        unproven = nearest > _distance(level, quantum).sub_(tolerance).clamp_(min=0.0)
-        if off is not None:
-            unproven &= ~off
+        # always does). For the others, only goals nearer in a straight line than the best distance
+        # so far can be nearer: read those (usually a handful) from the metric too.
+        unproven = nearest > bound
+        if self._snap:
+            unproven &= points[..., 5] >= 0  # an off-graph goal is inf from everything
         if stats is not None:
             stats["rescored"] = int(unproven.sum())
         if bool(unproven.any()):
             kk, ii = unproven.nonzero(as_tuple=True)
             best = nearest[kk, ii]
-            row = keys[kk, ii]  # [U, B]; the goal itself and its shortlist hold int32 max
-            bound = _distance(row // b, quantum).sub_(tolerance).masked_fill_(row == _INT32_MAX, math.inf)
-            uu, jj = (bound < best.unsqueeze(-1)).nonzero(as_tuple=True)
+            planar = points[..., :3].transpose(1, 2)  # [K, 3, B]: coordinate planes, for a fast sum
+            straight = (planar[kk] - points[kk, ii, :3].unsqueeze(-1)).square_().sum(1).sqrt_()  # [U, B]
+            straight.sub_(self._tolerance()).scatter_(1, ii.unsqueeze(1), math.inf)  # not itself
+            uu, jj = (straight < best.unsqueeze(-1)).nonzero(as_tuple=True)
             if len(uu):
-                distance = pair(ii[uu], jj, kk[uu])
-                best = best.scatter_reduce(0, uu, distance, reduce="amin")
+                best = best.scatter_reduce(0, uu, pair(ii[uu], jj, kk[uu]), reduce="amin")
                 nearest[kk, ii] = best
-        return nearest
+        return torch.empty_like(nearest).scatter_(1, order, nearest)
 
-    def _shortlist(
-        self, points: torch.Tensor, m: int
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, float]:
-        """Each point's m Euclidean-nearest others ``[K, B, m]``, the level of the nearest of the rest
-        ``[K, B]`` (a lower bound on the squared distance to every goal outside the shortlist, see
-        :func:`_distance`), the int32 keys ``[K, B, B]`` (level · B + column; shortlisted and self: int32 max)
-        and the squared metres per level."""
+    def _pairs(self, points: torch.Tensor, goals: torch.Tensor | None):
+        """``pair(rows, cols, batch)``: metric distance of goal ``rows`` to goals ``cols`` (indices within
+        candidate ``batch``), broadcasting."""
+        b = points.shape[1]
+        if self._snap:
+            flat = points[..., 5].long().view(-1)
+
+            def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
+                return self._lookup(flat[batch * b + rows], flat[batch * b + cols])
+        else:
+            metric = self.metric
+
+            def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
+                return _check(metric.distance(goals[batch, rows], goals[batch, cols]), "diversity metric")
+
+        return pair
+
+    def _lookup(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
+        """Graph distance between vertex indices (the graph's unchecked lookup where it has one)."""
+        metric = self.metric
+        return getattr(metric, "_pair_distance_unchecked", metric.distance_between_vertices)(i, j)
+
+    def _tolerance(self) -> float:
+        """Metres the straight-line bound is lowered by: float32 rounding, and for a graph half its
+        table's resolution (its distances are rounded to it)."""
+        return _BOUND_TOLERANCE + (0.5 * float(getattr(self.metric, "resolution", 0.0)) if self._snap else 0.0)
+
+    def _shortlist(self, points: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """For points sorted along the axis ``[K, B, 6]``: each one's m nearest others in its window, as
+        sorted positions ``[K, B, m]``, and a lower bound in metres ``[K, B]`` on its straight-line
+        distance to every other goal (outside the window: the gap along the axis)."""
         k, b, _ = points.shape
-        levels = _INT32_MAX // b - 2 * _LEVEL_SLACK  # key = level · B + column stays below int32 max
+        layout = self._layout(b, m)
+        size, pad, blocks, width, stride = (layout[key] for key in ("size", "pad", "blocks", "width", "stride"))
+        levels = _levels(stride)
         # |p_i − p_j| ≤ 2·max|p|: no pair is above the top level, so no clamp is needed. For a graph
         # max|p| is the parking distance; otherwise it is read from the points.
         reach = self._reach if self._snap else float(points[..., 3].amax()) ** 0.5
         quantum = max(4.0 * reach * reach, 1e-12) / levels
         left = points[..., :5]  # [p, |p|², 1]
-        right = torch.matmul(self._product_map(quantum), left.transpose(1, 2))  # [K, 5, B]: [-2p, 1, |p|² + 2q] / q
-        squared = self._buffer("squared", (k, b, b), torch.float32)
-        torch.bmm(left, right, out=squared)  # squared distance in levels, + _LEVEL_SLACK
+        rows = blocks * size
+        if pad or rows != b:  # padding rows (zeros, masked below) around the sorted goals
+            padded = left.new_zeros(k, rows + 2 * pad, 5)
+            padded[:, pad : pad + b] = left
+        else:
+            padded = left
+        # [p, |p|², 1] -> [-2p, 1, |p|² + slack·q] / q (padding rows -> [0, 0, slack]).
+        scale, shift = self._product_map(quantum)
+        right = torch.addcmul(shift, padded.index_select(-1, _SWAP), scale)
+        windows = right.unfold(1, width, size).reshape(k * blocks, 5, width)
+        own = padded[:, pad : pad + rows].reshape(k * blocks, size, 5)
+        squared = self._buffer("squared", (k * blocks, size, width), torch.float32)
+        torch.bmm(own, windows, out=squared)  # squared distance in levels, + _LEVEL_SLACK
         # In place (same 4-byte slots, element by element: one scratch matrix, half the cache footprint).
         keys = squared.view(torch.int32)
         keys.copy_(squared)  # truncation: level + slack - 1 <= key level <= level + slack (float32 rounding < 1 level)
-        torch.add(self._columns(b), keys, alpha=b, out=keys)  # key = level · B + column
-        keys.diagonal(dim1=-2, dim2=-1).fill_(_INT32_MAX)
-        cols = torch.empty(k, b, m, dtype=torch.long)
-        for r in range(m):
-            column = torch.remainder(keys.amin(-1, keepdim=True), b).long()  # [K, B, 1]
-            cols[..., r : r + 1] = column
-            keys.scatter_(-1, column, _INT32_MAX)
-        return cols, keys.amin(-1) // b, keys, quantum
+        # key = level · S + column (S: a power of two >= W), above every pair's key for the goal itself
+        # and padding columns.
+        blocked = keys.view(k, blocks, size, width)
+        torch.add(layout["offset"], blocked, alpha=stride, out=blocked)
+        flat, mask = keys.view(-1), stride - 1
+        starts = self._row_starts(k * blocks * size, width).view(k * blocks, size, 1)  # flat index of each row
+        nearest = []
+        for _ in range(m):
+            low = keys.amin(-1, keepdim=True)  # [K·blocks, size, 1]
+            nearest.append(low)
+            flat.index_fill_(0, torch.add(starts, low.bitwise_and(mask)).view(-1), _INT32_MAX)
+        cols = torch.cat(nearest, -1).bitwise_and_(mask).long().view(k, rows, m)
+        cols = cols[:, :b].add_(layout["first"])  # window column -> sorted position
+        bound = _distance(keys.amin(-1).view(k, rows)[:, :b].bitwise_right_shift_(stride.bit_length() - 1), quantum)
+        # Goals outside the window are at least the gap along the axis away.
+        axis = points[..., self._axis]
+        ends = torch.cat([axis.new_full((k, 1), -math.inf), axis, axis.new_full((k, 1), math.inf)], 1)
+        gap = torch.minimum(axis - ends[:, layout["before"]], ends[:, layout["after"]] - axis)
+        return cols, torch.minimum(bound, gap).sub_(self._tolerance()).clamp_(min=0.0)
 
-    def _product_map(self, quantum: float) -> torch.Tensor:
-        """``M`` with ``M · [p, |p|², 1]ᵀ = [-2p, 1, |p|² + slack·q]ᵀ / q`` (a 5 × 5 matrix, kept per quantum)."""
+    def _layout(self, b: int, m: int) -> dict[str, Any]:
+        """Block geometry for B goals, kept per (B, m): block size, padding, number of blocks, window
+        width, the keys' column numbers, the mask of excluded keys (a goal itself, padding), each
+        sorted position's first window position, and its nearest goals outside the window (indices
+        into the axis values with -inf / +inf put at both ends)."""
+        cached = self._scratch.get(("layout", b, m))
+        if cached is not None:
+            return cached
+        size = self.block
+        if b > 3 * size and size > m:
+            pad, blocks, width = size, -(-b // size), 3 * size
+        else:  # one window holds every goal
+            size, pad, blocks, width = b, 0, 1, b
+        block = torch.arange(blocks).view(blocks, 1, 1)
+        row = torch.arange(size).view(1, size, 1)
+        column = torch.arange(width).view(1, 1, width)
+        padded = block * size + column  # padded position of each window column
+        excluded = (padded < pad) | (padded >= pad + b) | (column == row + pad)
+        # Keys are level · S + offset. A pair's level is at most levels + slack, so its key is below
+        # (levels + slack + 1) · S; excluded entries (level <= slack + 1: the goal itself, padding) get
+        # (levels + 2·slack + 2) · S more, which keeps them above every pair and below int32 max.
+        stride = 1 << (width - 1).bit_length()
+        offset = column.expand(blocks, size, width) + excluded * ((_levels(stride) + 2 * _LEVEL_SLACK + 2) * stride)
+        position = torch.arange(b)
+        start = (position // size) * size - pad  # sorted position of the window's first column
+        if pad:
+            before = (start - 1).clamp(min=-1) + 1
+            after = torch.where(start + width < b, start + width + 1, b + 1)
+        else:
+            before, after = torch.zeros(b, dtype=torch.long), torch.full((b,), b + 1)
+        layout = self._scratch[("layout", b, m)] = {
+            "size": size,
+            "pad": pad,
+            "blocks": blocks,
+            "width": width,
+            "stride": stride,
+            "offset": offset.to(torch.int32).contiguous(),
+            "first": start.view(1, b, 1),
+            "before": before,
+            "after": after,
+        }
+        return layout
+
+    def _row_starts(self, rows: int, width: int) -> torch.Tensor:
+        cached = self._scratch.get("starts")
+        if cached is None or cached.numel() != rows or (rows > 1 and int(cached.view(-1)[1]) != width):
+            cached = self._scratch["starts"] = torch.arange(0, rows * width, width).view(-1, 1)
+        return cached
+
+    def _product_map(self, quantum: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """``scale, shift`` with ``[p, 1, |p|²] · scale + shift = [-2p, 1, |p|² + slack·q] / q`` (kept per quantum)."""
         cached = self._scratch.get("map")
         if cached is None or cached[0] != quantum:
-            product = torch.zeros(5, 5)
-            product[[0, 1, 2], [0, 1, 2]] = -2.0 / quantum
-            product[3, 4] = product[4, 3] = 1.0 / quantum
-            product[4, 4] = float(_LEVEL_SLACK)
-            cached = self._scratch["map"] = (quantum, product)
+            scale = torch.tensor([-2.0, -2.0, -2.0, 1.0, 1.0]) / quantum
+            shift = torch.tensor([0.0, 0.0, 0.0, 0.0, float(_LEVEL_SLACK)])
+            cached = self._scratch["map"] = (quantum, (scale, shift))
         return cached[1]
-
-    def _columns(self, b: int) -> torch.Tensor:
-        columns = self._scratch.get("columns")
-        if columns is None or len(columns) != b:
-            columns = self._scratch["columns"] = torch.arange(b, dtype=torch.int32)
-        return columns
 
     def _buffer(self, name: str, shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
         buffer = self._scratch.get(name)
         if buffer is None or buffer.shape != shape:
             buffer = self._scratch[name] = torch.empty(shape, dtype=dtype)
         return buffer
+
+
+def _levels(stride: int) -> int:
+    """Squared-distance levels for keys ``level · stride + column`` (room is left for excluded entries)."""
+    return _INT32_MAX // stride - 4 * _LEVEL_SLACK - 4
 
 
 def _distance(level: torch.Tensor, quantum: float) -> torch.Tensor:
