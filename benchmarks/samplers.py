@@ -7,7 +7,8 @@ Prints, in one run:
   reserves in a ``LazyTensorStorage``;
 * on a full buffer of 5,000 push_new-shaped episodes (2.5 M transitions; synthetic object paths
   around the wall, see ``synthetic_episodes``) with the push_new graph (31 × 31 × 11, margin 0.02):
-  seconds per ``buffer.sample()`` of 256 for uniform, EBP, graph curriculum (K = 8) and CHER greedy,
+  seconds per ``buffer.sample()`` of 256 for uniform, EBP, graph curriculum (K = 8, EBP candidates,
+  default ``draw_ahead=8``: averaged over the samples, as in training) and CHER greedy,
   each as a ratio to uniform (medians over interleaved rounds: the machine is shared and noisy);
 * how often the curriculum's nearest-neighbour shortlist could not prove a goal's nearest neighbour
   (more pairs are then read), and that it always equals the all-pairs value.

@@ -481,7 +481,7 @@ class NearestNeighbours:
         if m is None or m >= b - 1:  # all pairs
             if stats is not None:
                 stats["rescored"] = 0
-            distance = self._pairs(points, goals)(
+            distance = self._pairs(points[..., 5].long(), goals)(
                 torch.arange(b).view(1, b, 1), torch.arange(b).view(1, 1, b), torch.arange(k).view(k, 1, 1)
             ).clone()
             distance.diagonal(dim1=-2, dim2=-1).fill_(math.inf)
@@ -494,10 +494,10 @@ class NearestNeighbours:
         points = points.gather(1, order.unsqueeze(-1).expand(points.shape))
         if goals is not None and not self._snap:
             goals = goals.gather(1, order.unsqueeze(-1).expand(k, b, goals.shape[-1]))
-        pair = self._pairs(points, goals)
+        vertex = points[..., 5].long()  # [K, B]: -1 off the graph (and 0 for other metrics)
+        pair = self._pairs(vertex, goals)
         cols, bound = self._shortlist(points, m)  # sorted positions [K, B, m], lower bound [K, B] on the rest
         if self._snap:  # the same lookup as pair(rows, cols, batch), with fewer index operations
-            vertex = points[..., 5].long()
             candidates = vertex.gather(1, cols.reshape(k, b * m)).view(k, b, m)
             nearest = self._lookup(vertex.unsqueeze(-1), candidates).amin(-1)  # [K, B]
         else:
@@ -507,7 +507,7 @@ class NearestNeighbours:
         # so far can be nearer: read those (usually a handful) from the metric too.
         unproven = nearest > bound
         if self._snap:
-            unproven &= points[..., 5] >= 0  # an off-graph goal is inf from everything
+            unproven &= vertex >= 0  # an off-graph goal is inf from everything
         if stats is not None:
             stats["rescored"] = int(unproven.sum())
         if bool(unproven.any()):
@@ -522,12 +522,12 @@ class NearestNeighbours:
                 nearest[kk, ii] = best
         return torch.empty_like(nearest).scatter_(1, order, nearest)
 
-    def _pairs(self, points: torch.Tensor, goals: torch.Tensor | None):
+    def _pairs(self, vertex: torch.Tensor, goals: torch.Tensor | None):
         """``pair(rows, cols, batch)``: metric distance of goal ``rows`` to goals ``cols`` (indices within
-        candidate ``batch``), broadcasting."""
-        b = points.shape[1]
+        candidate ``batch``), broadcasting; from the goals' vertex indices ``[K, B]`` for a graph."""
+        b = vertex.shape[1]
         if self._snap:
-            flat = points[..., 5].long().view(-1)
+            flat = vertex.reshape(-1)
 
             def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
                 return self._lookup(flat[batch * b + rows], flat[batch * b + cols])
@@ -642,9 +642,10 @@ class NearestNeighbours:
         return layout
 
     def _row_starts(self, rows: int, width: int) -> torch.Tensor:
-        cached = self._scratch.get("starts")
-        if cached is None or cached.numel() != rows or (rows > 1 and int(cached.view(-1)[1]) != width):
-            cached = self._scratch["starts"] = torch.arange(0, rows * width, width).view(-1, 1)
+        """Flat index of the first key of each of ``rows`` rows of ``width`` keys (kept per shape)."""
+        cached = self._scratch.get(("starts", rows, width))
+        if cached is None:
+            cached = self._scratch[("starts", rows, width)] = torch.arange(0, rows * width, width)
         return cached
 
     def _product_map(self, quantum: float) -> tuple[torch.Tensor, torch.Tensor]:
