@@ -1,13 +1,15 @@
-"""Seconds per training iteration on push_new for her, ghgg and gchgg, against the floor for the same work.
+"""Seconds per training iteration on push_new for her, ghgg and gchgg, against the floor, and per chunk count C.
 
-An iteration is 50 episodes of 100 steps (one batched rollout), HER relabelling into the buffer and
-1,000 DDPG updates of 256 (plus goal generation for ghgg / gchgg); evaluation and checkpointing are
-timed apart (not included). The floor is the same work done bare, measured in the same run: 5,000
+An iteration is 50 episodes of 100 steps (collected in ``train.chunks`` chunks), HER relabelling
+into the buffer, a normaliser update per chunk and 1,000 DDPG updates of 256 (plus goal generation
+for ghgg / gchgg); evaluation and checkpointing are timed apart (not included). gchgg is also
+timed with C = 1, 5 and 50 chunks (C = 50 is the default, the original's per-episode loop; C = 1
+collects all episodes with one policy, then runs all updates), and the ratio C=50 / C=1 printed. The floor is the same work done bare, measured in the same run: 5,000
 raw dm_control ``Environment.step`` calls on one env and 1,000 plain-torch DDPG updates
 (``benchmarks/agent_update.py``'s ``BareDDPG``). Each algorithm first runs one untimed iteration
 (filling the buffer; the goal pool is filled with 1,000 synthetic trajectories beforehand), then ``--iterations`` timed ones; the median is printed.
 
-    python benchmarks/iteration.py [--iterations 2] [--updates 1000] [--threads 1]
+    python benchmarks/iteration.py [--iterations 2] [--updates 1000] [--threads 1] [--chunks 1 5 50]
 """
 
 from __future__ import annotations
@@ -77,8 +79,10 @@ def fill_pool(trainer: Trainer) -> None:
     pool.add(walks.float(), observations)
 
 
-def iteration_seconds(algo: str, iterations: int, updates: int, threads: int) -> tuple[float, dict[str, float]]:
-    """Median seconds per timed iteration of ``algo`` on push_new, and the median per phase."""
+def iteration_seconds(
+    algo: str, iterations: int, updates: int, threads: int, chunks: int = 50
+) -> tuple[float, dict[str, float]]:
+    """Median seconds per timed iteration of ``algo`` on push_new with ``chunks`` chunks, and the median per phase."""
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose(
             "config",
@@ -86,6 +90,7 @@ def iteration_seconds(algo: str, iterations: int, updates: int, threads: int) ->
                 "env=push_new",
                 f"algo={algo}",
                 f"train.updates={updates}",
+                f"train.chunks={chunks}",
                 "train.warmup_steps=0",  # the policy acts, as after warm-up
                 "eval.episodes=1",  # evaluation is not part of the timed work
                 f"threads={threads}",
@@ -106,6 +111,8 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=2, help="timed iterations per algorithm")
     parser.add_argument("--updates", type=int, default=1000, help="DDPG updates per iteration")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--chunks", type=int, nargs="*", default=[1, 5, 50], help="chunk counts C timed for gchgg")
+    parser.add_argument("--algos", nargs="*", default=["her", "ghgg", "gchgg"], help="algorithms timed at C = 50")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
@@ -114,12 +121,22 @@ def main() -> None:
     print(f"push_new, 50 episodes x 100 steps + {args.updates} updates of 256, threads={args.threads}")
     print(f"floor: {floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare DDPG updates {update_s:.2f} s)")
     seconds = {}
-    for algo in ("her", "ghgg", "gchgg"):
+    for algo in args.algos:
         seconds[algo], phases = iteration_seconds(algo, args.iterations, args.updates, args.threads)
         detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
-        print(f"{algo:6s} {seconds[algo]:6.2f} s/iteration  {seconds[algo] / floor:.2f}x floor  ({detail})")
-    print(f"her / floor = {seconds['her'] / floor:.2f} (target <= 1.3)")
-    print(f"gchgg / her = {seconds['gchgg'] / seconds['her']:.2f} (target <= 1.25; the paper: 179 s / 52 s = 3.4)")
+        print(f"{algo:6s} {seconds[algo]:6.2f} s/iteration  {seconds[algo] / floor:.2f}x floor  ({detail})", flush=True)
+    if "her" in seconds:
+        print(f"her / floor = {seconds['her'] / floor:.2f} (target <= 1.3)")
+    if {"her", "gchgg"} <= set(seconds):
+        print(f"gchgg / her = {seconds['gchgg'] / seconds['her']:.2f} (target <= 1.25; the paper: 179 s / 52 s = 3.4)")
+    by_chunks = {50: seconds["gchgg"]} if "gchgg" in seconds else {}
+    for chunks in args.chunks:
+        if chunks not in by_chunks:
+            by_chunks[chunks], phases = iteration_seconds("gchgg", args.iterations, args.updates, args.threads, chunks)
+        detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items()) if chunks != 50 or "gchgg" not in args.algos else "as above"
+        print(f"gchgg C={chunks:<3d} {by_chunks[chunks]:6.2f} s/iteration  ({detail})", flush=True)
+    if {1, 50} <= set(by_chunks):
+        print(f"gchgg C=50 / C=1 = {by_chunks[50] / by_chunks[1]:.2f} (target <= 1.2)")
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ _CUBE_HALF = 0.02  # metres: half-width of the pushed cube
 _PAD_HALF = (0.02, 0.01)  # metres: half-widths of the closed fingers along world x and y
 _CLEARANCE = 0.012  # metres: gap between fingers and cube before a push starts
 _PASSAGE_X = 0.915  # metres: x of the cube's path through the passage at the wall's end
+_EXIT_Y = -0.16  # metres: y the cube is pushed to after the passage, before it turns to the goal
 
 Controller = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -92,10 +93,12 @@ def push_around_wall(observation: np.ndarray, goal: np.ndarray) -> np.ndarray:
     """
     grip, cube = observation[:, 0:3], observation[:, 3:6]
     n = len(cube)
-    south = cube[:, 1] < -0.065
+    # South of the wall, and clear of the passage: pushed from the passage exit well south of the
+    # wall's face, so that the hand behind the cube never scrapes the wall on the way to the goal.
+    south = (cube[:, 1] < -0.065) & ((cube[:, 1] < _EXIT_Y + 0.01) | (cube[:, 0] < _PASSAGE_X - 0.04))
     north_west = (cube[:, 1] > 0.07) & (cube[:, 0] < _PASSAGE_X - 0.01)
     entry = np.array([_PASSAGE_X, 0.15])
-    exit_ = np.array([_PASSAGE_X, -0.1])
+    exit_ = np.array([_PASSAGE_X, _EXIT_Y])
     sub_goal = np.where(south[:, None], goal[:, :2], np.where(north_west[:, None], entry, exit_))
 
     to_goal = sub_goal - cube[:, :2]

@@ -666,6 +666,21 @@ class DDPGAgent:
         self.observation_normalizer.update(observation)
         self.goal_normalizer.update(goal)
 
+    @torch.no_grad()
+    def clipped_fraction(self, observation: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Fractions of the normalised observation and goal entries at the normalisers' clip (±clip).
+
+        A large fraction means the statistics do not cover the data the networks train on (e.g. an
+        object far outside the positions the normaliser has seen).
+
+        Returns:
+            two float32 scalar tensors, observation then goal.
+        """
+        return tuple(
+            (norm(x).abs() >= norm.clip).float().mean()
+            for norm, x in ((self.observation_normalizer, observation), (self.goal_normalizer, goal))
+        )
+
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One gradient step of the actor and the critic on ``batch``; the target networks move every
         ``target_update_every``-th call.

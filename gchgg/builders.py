@@ -25,12 +25,18 @@ from gchgg.samplers import (
     FixedTradeoff,
     GraphCurriculumSampler,
 )
+from gchgg.samplers.curriculum import SCALES
 from gchgg.transforms import EpisodeEnergy, GoalToNext, HindsightRelabel
 
 METRICS = ("euclidean", "graph")
 SAMPLERS = ("uniform", "ebp", "curriculum", "cher")
 TRADEOFFS = ("adaptive", "exponential", "fixed")
 GOAL_GENERATORS = ("none", "hgg")
+PROXIMITIES = {  # curriculum.proximity -> (stored goal measured from, stored goal measured to)
+    "goal_to_target": ("desired_goal", "task_goal"),  # eq. 15: hindsight goal to the target-task goal T*
+    "achieved_to_goal": ("achieved_goal", "desired_goal"),  # the authors' code: closeness to success
+}
+DIVERSITY_OF = {"goal": "desired_goal", "achieved": "achieved_goal"}  # curriculum.diversity_of -> stored key
 
 
 def check_choice(setting: str, value, allowed: Sequence[str]) -> str:
@@ -75,26 +81,69 @@ def make_metric(
     return GoalGraph(field, obstacles, n, margin, snap=snap, cache_dir=USER_CACHE_DIR if cache_dir is None else cache_dir)
 
 
-def make_tradeoff(kind: str, *, eta: float = 1000.0, sigma: float = 0.3, lambda_0: float = 1.0, tau: float = 0.005, value: float = 1.0):
-    """The λ schedule: adaptive (eq. 20), exponential (eq. 4) or fixed."""
+def make_tradeoff(
+    kind: str,
+    *,
+    eta: float = 1000.0,
+    sigma: float = 0.3,
+    lambda_0: float = 1.0,
+    tau: float = 0.005,
+    value: float = 1.0,
+    update_every: str = "iteration",
+):
+    """The λ schedule: adaptive (eq. 20; D read per ``update_every``), exponential (eq. 4) or fixed."""
     check_choice("tradeoff", kind, TRADEOFFS)
+    check_choice("tradeoff.update_every", update_every, AdaptiveTradeoff.UPDATE_EVERY)
+    if kind != "adaptive" and update_every != "iteration":
+        raise ValueError(f"tradeoff.update_every={update_every!r} needs tradeoff=adaptive, got tradeoff={kind!r}")
     if kind == "adaptive":
-        return AdaptiveTradeoff(eta=eta, sigma=sigma)
+        return AdaptiveTradeoff(eta=eta, sigma=sigma, update_every=update_every)
     if kind == "exponential":
         return ExponentialTradeoff(lambda_0=lambda_0, tau=tau)
     return FixedTradeoff(value)
 
 
-def make_sampler(kind: str, metric, tradeoff, *, num_candidates: int = 8, cher_pool_size: int = 5000):
-    """The replay sampler: uniform, EBP, graph curriculum (Alg. 1, candidates drawn with EBP) or CHER."""
+def make_sampler(
+    kind: str,
+    metric,
+    tradeoff,
+    *,
+    num_candidates: int = 8,
+    proximity: str = "goal_to_target",
+    diversity_of: str = "goal",
+    diversity_metric=None,
+    scale: str = "raw",
+    cher_pool_size: int = 5000,
+):
+    """The replay sampler: uniform, EBP, graph curriculum (Alg. 1, candidates drawn with EBP) or CHER.
+
+    For the curriculum: ``proximity`` (a key of :data:`PROXIMITIES`) says which two stored goals F_prox
+    measures, ``diversity_of`` (``"goal"`` or ``"achieved"``) whose nearest neighbours F_div scores, with
+    ``diversity_metric`` (default: ``metric``), and ``scale`` (``"raw"`` or ``"standardized"``) how the
+    two terms are weighed (see :class:`~gchgg.samplers.GraphCurriculumSampler`).
+    """
     check_choice("sampler", kind, SAMPLERS)
     if kind == "uniform":
         return None  # TorchRL's RandomSampler
     if kind == "ebp":
         return EnergySampler("energy")
     if kind == "curriculum":
-        check_positive("num_candidates", num_candidates, integer=True)
-        return GraphCurriculumSampler(metric, num_candidates, tradeoff, energy_key="energy")
+        check_positive("curriculum.num_candidates", num_candidates, integer=True)
+        check_choice("curriculum.proximity", proximity, tuple(PROXIMITIES))
+        check_choice("curriculum.diversity_of", diversity_of, tuple(DIVERSITY_OF))
+        check_choice("curriculum.scale", scale, SCALES)
+        goal_key, target_key = PROXIMITIES[proximity]
+        return GraphCurriculumSampler(
+            metric,
+            num_candidates,
+            tradeoff,
+            goal_key=goal_key,
+            target_key=target_key,
+            diversity_key=DIVERSITY_OF[diversity_of],
+            diversity_metric=diversity_metric,
+            scale=scale,
+            energy_key="energy",
+        )
     check_positive("cher_pool_size", cher_pool_size, integer=True)
     return CherSampler(metric, pool_size=cher_pool_size, tradeoff=tradeoff)
 

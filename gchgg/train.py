@@ -1,14 +1,19 @@
 """`python -m gchgg.train env=<task> algo=<method>`: the Hydra app that wires the parts into Algorithm 2.
 
-One iteration, top to bottom (``Trainer.iteration``):
+One iteration, top to bottom (``Trainer.iteration_step``), as the authors' ``learner/hgg.py``:
 
-1. target tasks T* from a reset of the batched env (one per episode);
+1. target tasks T* (initial achieved goal, desired goal) from resets of the env, one per episode;
 2. intermediate goals from the HGG goal generator (eqs. 6-7), or the targets themselves (HER, CHER);
-   λ updated from D_G (eq. 20) or stepped (eq. 4);
-3. one batched rollout of all episodes (uniform random actions during warm-up, else eq. 22);
-4. the trajectory pool, the normalisers, EBP energy + HER relabelling, the replay buffer;
-5. ``train.updates`` DDPG updates on batches from the buffer's sampler (EBP, Alg. 1 or CHER);
-6. evaluation on target goals, a ``metrics.csv`` row, an atomic checkpoint.
+   the trade-off λ starts the iteration (eq. 20 from D_G, or eq. 4 at iteration k);
+3. for each of ``train.chunks`` chunks of the episodes, in turn: one batched rollout with the
+   *current* policy (uniform random actions during warm-up, else eq. 22) for the chunk's goals;
+   EBP energy + HER relabelling into the replay buffer; a normaliser update (from a batch drawn
+   from the buffer, or from the collected transitions); once warm-up is over, the chunk's share
+   of ``train.updates`` DDPG updates on batches from the buffer's sampler (EBP, Alg. 1 or CHER);
+   the trade-off hears how many episodes are done;
+4. the iteration's trajectories into the goal generator's pool;
+5. evaluation on target goals, a ``metrics.csv`` row (with the diagnostics the README lists), an
+   atomic checkpoint.
 
 All algorithm logic lives in the parts (``envs``, ``gchgg.graph``, ``gchgg.hgg``, ``gchgg.samplers``,
 ``gchgg.transforms``, ``gchgg.agent``); this module only builds them from the config and calls them.
@@ -31,12 +36,14 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
+from tensordict import TensorDict  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
 from gchgg.agent import DDPGAgent  # noqa: E402
 from gchgg.builders import (  # noqa: E402
+    check_choice,
     check_positive,
     make_goal_generator,
     make_metric,
@@ -53,11 +60,16 @@ CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydr
 CHECKPOINT = "checkpoint.pt"
 METRICS = "metrics.csv"
 MAX_DIS_RESETS = 1000  # resets over which HGG's max_dis (largest initial-to-target distance) is taken
+NORMALIZER_SOURCES = ("sampled", "collected")
+TRADEOFF_SAMPLERS = ("curriculum", "cher")  # samplers that read a trade-off λ
 
 
 def check_config(cfg: DictConfig) -> None:
     """Fail before training, naming the setting, on sizes, rates and fractions out of range."""
-    for setting in ("train.iterations", "train.episodes", "train.batch_size", "eval.episodes", "buffer.episodes"):
+    for setting in (
+        "train.iterations", "train.episodes", "train.chunks", "train.batch_size", "eval.episodes", "buffer.episodes",
+        "train.stop_patience",
+    ):  # fmt: skip
         check_positive(setting, OmegaConf.select(cfg, setting), integer=True)
     for setting in ("train.updates", "train.warmup_steps", "her.k", "threads"):
         check_positive(setting, OmegaConf.select(cfg, setting), integer=True, allow_zero=True)
@@ -69,6 +81,15 @@ def check_config(cfg: DictConfig) -> None:
             raise ValueError(f"{setting} must be a number in [0, 1], got {value!r}")
     check_positive("agent.noise_std", cfg.agent.noise_std, allow_zero=True)
     check_positive("agent.action_l2", cfg.agent.action_l2, allow_zero=True)
+    if cfg.train.episodes % cfg.train.chunks:
+        raise ValueError(
+            f"train.chunks must divide train.episodes (each chunk collects the same number of episodes), "
+            f"got train.chunks={cfg.train.chunks} for train.episodes={cfg.train.episodes}"
+        )
+    check_choice("agent.normalizer_source", cfg.agent.normalizer_source, NORMALIZER_SOURCES)
+    stop = cfg.train.stop_success
+    if stop is not None and (isinstance(stop, bool) or not isinstance(stop, (int, float)) or not 0 <= stop <= 1):
+        raise ValueError(f"train.stop_success must be null or a success rate in [0, 1], got {stop!r}")
     if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
         raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {cfg.train.episodes}")
 
@@ -96,7 +117,8 @@ class Trainer:
         name = cfg.env.name
         self.geometry = envs.geometry(name)
         self.steps = self.geometry.episode_length
-        self.env = envs.make(name, num_envs=cfg.train.episodes, seed=cfg.seed, threshold=cfg.env.threshold)
+        self.chunk_size = cfg.train.episodes // cfg.train.chunks
+        self.env = envs.make(name, num_envs=self.chunk_size, seed=cfg.seed, threshold=cfg.env.threshold)
         self.eval_env = envs.make(name, num_envs=cfg.eval.episodes, seed=int(seeds[3]), threshold=cfg.env.threshold)
 
         algo = cfg.algo
@@ -109,9 +131,26 @@ class Trainer:
             snap=cfg.graph.snap,
             cache_dir=cfg.graph.cache_dir,
         )
-        self.tradeoff = make_tradeoff(cfg.tradeoff.name, **{k: v for k, v in cfg.tradeoff.items() if k != "name"})
+        self.tradeoff = None  # only samplers that weigh diversity against proximity have a λ
+        if algo.sampler in TRADEOFF_SAMPLERS:
+            self.tradeoff = make_tradeoff(cfg.tradeoff.name, **{k: v for k, v in cfg.tradeoff.items() if k != "name"})
+        curriculum = cfg.curriculum
+        diversity_metric = None
+        if algo.sampler == "curriculum" and curriculum.diversity_metric != algo.metric:
+            diversity_metric = make_metric(
+                curriculum.diversity_metric, self.geometry.field, self.geometry.obstacles,
+                n=tuple(cfg.graph.n), margin=cfg.graph.margin, snap=cfg.graph.snap, cache_dir=cfg.graph.cache_dir,
+            )  # fmt: skip
         self.sampler = make_sampler(
-            algo.sampler, self.metric, self.tradeoff, num_candidates=cfg.curriculum.num_candidates, cher_pool_size=cfg.cher.pool_size
+            algo.sampler,
+            self.metric,
+            self.tradeoff,
+            num_candidates=curriculum.num_candidates,
+            proximity=curriculum.proximity,
+            diversity_of=curriculum.diversity_of,
+            diversity_metric=diversity_metric,
+            scale=curriculum.scale,
+            cher_pool_size=cfg.cher.pool_size,
         )
         copies = cfg.her.k + 1
         self.buffer = make_replay_buffer(
@@ -166,72 +205,94 @@ class Trainer:
     def iteration_step(self) -> dict[str, float]:
         """Runs one iteration of Algorithm 2 and returns its metrics row."""
         cfg, row, clock = self.cfg, {"iteration": self.iteration}, time.perf_counter()
+        timing = {"goals": 0.0, "rollout": 0.0, "store": 0.0, "update": 0.0}
 
         def lap(phase: str) -> None:
             nonlocal clock
             now = time.perf_counter()
-            row[f"seconds_{phase}"] = now - clock
+            timing[phase] += now - clock
             clock = now
 
-        # 1-2. Target tasks, intermediate goals, trade-off.
-        start = self.env.reset()
-        d_g, from_pool = 0.0, False
+        # 1-2. Target tasks, intermediate goals, the trade-off's start of the iteration.
+        starts, targets = self._target_tasks()
+        goals, distances = targets, None
         if self.goal_generator is not None:
-            generation = self.goal_generator.generate(start["achieved_goal"], start["desired_goal"], self.agent.value)
-            d_g, from_pool = generation.d_g, generation.from_pool
-            if from_pool:
-                reset = {"desired_goal": generation.goals}
-                if self.env.has_object:
-                    reset["object_position"] = start["achieved_goal"]
-                start = self.env.reset(start.empty().update(reset))
+            generation = self.goal_generator.generate(starts, targets, self.agent.value)
+            row["d_g"] = generation.d_g
+            if generation.from_pool:
+                goals, distances = generation.goals, generation.distance
             if self.goal_generator.stopped and isinstance(self.sampler, GraphCurriculumSampler):
                 self.sampler.num_candidates = 1  # plain (EBP) sampling once the curriculum has stopped
-        self.tradeoff.update(distance=d_g if (from_pool or self.goal_generator is None) else math.inf)
-        row.update(d_g=d_g, **{"lambda": float(self.tradeoff.value)})
+        if self.tradeoff is not None:
+            row["lambda"] = float(self.tradeoff.begin_iteration(self.iteration, distances))
         lap("goals")
 
-        # 3. One batched rollout: uniform random actions during warm-up, else pi + noise (eq. 22).
-        warmup = self.env_steps < cfg.train.warmup_steps
-        with torch.inference_mode():
-            if warmup:
-                act = lambda obs, goal: self.agent.random_action(len(obs), self.explore_rng)  # noqa: E731
-            else:
-                act = partial(self.agent.act, explore=True, generator=self.explore_rng)
-            rollout = collect(self.env, act, self.steps, start)
-        self.env_steps += rollout.numel()
-        lap("rollout")
+        # 3. Chunks: collect with the current policy, store, update the normalisers, train.
+        stats = _IterationStats()
+        warmup_at_start = self.env_steps < cfg.train.warmup_steps
+        chunks, n = cfg.train.chunks, self.chunk_size
+        for chunk in range(chunks):
+            rows = slice(chunk * n, (chunk + 1) * n)
+            reset = {"desired_goal": goals[rows]}
+            if self.env.has_object:
+                reset["object_position"] = starts[rows]  # the target task's own initial state
+            start = self.env.reset(TensorDict(reset, batch_size=[n]))
+            with torch.inference_mode():
+                if self.env_steps < cfg.train.warmup_steps:
+                    act = lambda obs, goal: self.agent.random_action(len(obs), self.explore_rng)  # noqa: E731
+                else:
+                    act = partial(self.agent.act, explore=True, generator=self.explore_rng)
+                rollout = collect(self.env, act, self.steps, start)
+            self.env_steps += rollout.numel()
+            stats.add_episodes(rollout, self.geometry if self.env.has_object else None)
+            lap("rollout")
 
-        # 4. Pool, normalisers, relabelled transitions into the buffer.
-        achieved = torch.cat([rollout["achieved_goal"][:, :1], rollout["next", "achieved_goal"]], dim=1)
+            rollout.set("task_goal", targets[rows].unsqueeze(1).expand(n, self.steps, 3))  # T*, for eq. 15
+            transitions = self.relabel(rollout)
+            self.buffer.extend(transitions)
+            if cfg.agent.normalizer_source == "collected":
+                self.agent.update_normalizer(transitions["observation"], transitions["desired_goal"])
+            else:  # the original: statistics from one batch drawn as the updates draw them
+                batch = self.buffer.sample()
+                self.agent.update_normalizer(batch["observation"], batch["desired_goal"])
+            lap("store")
+
+            if self.env_steps >= cfg.train.warmup_steps or cfg.train.update_during_warmup:
+                share = (chunk + 1) * cfg.train.updates // chunks - chunk * cfg.train.updates // chunks
+                for _ in range(share):
+                    batch = self.buffer.sample()
+                    stats.add_update(self.agent.update(batch), batch, self.agent)
+            if self.tradeoff is not None:
+                self.tradeoff.after_episodes((chunk + 1) * n)
+            lap("update")
+
+        # 4. The iteration's trajectories into the goal generator's pool.
         if self.goal_generator is not None:
-            self.goal_generator.pool.add(achieved, rollout["observation"][:, 0])
-        transitions = self.relabel(rollout)
-        self.agent.update_normalizer(transitions["observation"], transitions["desired_goal"])
-        self.buffer.extend(transitions)
+            self.goal_generator.pool.add(stats.achieved(), stats.initial_observations())
+        row.update(stats.row())
         lap("store")
 
-        # 5. DDPG updates.
-        losses: dict[str, list[float]] = {}
-        diversity, proximity = [], []
-        if len(self.buffer) >= cfg.train.batch_size:
-            for _ in range(cfg.train.updates):
-                batch = self.buffer.sample()
-                for key, value in self.agent.update(batch).items():
-                    losses.setdefault(key, []).append(float(value))
-                if "diversity" in batch.keys():
-                    diversity.append(float(batch["diversity"][0]))
-                    proximity.append(float(batch["proximity"][0]))
-        row.update({key: float(np.mean(values)) for key, values in losses.items()})
-        if diversity:
-            row.update(diversity=float(np.mean(diversity)), proximity=float(np.mean(proximity)))
-        lap("update")
-
-        # 6. Evaluation on target goals.
+        # 5. Evaluation on target goals.
         row["success_rate"] = evaluate(self.eval_env, partial(self.agent.act, explore=False), self.steps)
-        lap("eval")
-        row.update(env_steps=self.env_steps, warmup=float(warmup), stopped=float(bool(self.goal_generator and self.goal_generator.stopped)))
+        row.update({f"seconds_{phase}": seconds for phase, seconds in timing.items()})
+        row["seconds_eval"] = time.perf_counter() - clock
+        row.update(
+            env_steps=self.env_steps,
+            warmup=float(warmup_at_start),
+            stopped=float(bool(self.goal_generator and self.goal_generator.stopped)),
+        )
         self.iteration += 1
         return row
+
+    def _target_tasks(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Initial achieved goals and target goals ``[episodes, 3]`` of this iteration's target tasks T*,
+        from one reset of the env per chunk."""
+        starts, targets = [], []
+        for _ in range(self.cfg.train.chunks):
+            td = self.env.reset()
+            starts.append(td["achieved_goal"])
+            targets.append(td["desired_goal"])
+        return torch.cat(starts), torch.cat(targets)
 
     # -- checkpoints ------------------------------------------------------------------------------
 
@@ -242,7 +303,7 @@ class Trainer:
             "history": self.history,
             "agent": self.agent.state_dict(),
             "buffer": self.buffer.state_dict(),
-            "tradeoff": self.tradeoff.state_dict(),
+            "tradeoff": None if self.tradeoff is None else self.tradeoff.state_dict(),
             "goal_generator": None if self.goal_generator is None else self.goal_generator.state_dict(),
             "her_rng": self.relabel[-1].generator.get_state(),
             "explore_rng": self.explore_rng.get_state(),
@@ -255,7 +316,8 @@ class Trainer:
         self.iteration, self.env_steps, self.history = state["iteration"], state["env_steps"], state["history"]
         self.agent.load_state_dict(state["agent"])
         self.buffer.load_state_dict(state["buffer"])
-        self.tradeoff.load_state_dict(state["tradeoff"])
+        if self.tradeoff is not None:
+            self.tradeoff.load_state_dict(state["tradeoff"])
         if self.goal_generator is not None:
             self.goal_generator.load_state_dict(state["goal_generator"])
             if self.goal_generator.stopped and isinstance(self.sampler, GraphCurriculumSampler):
@@ -281,6 +343,12 @@ class Trainer:
 
     # -- the loop ---------------------------------------------------------------------------------
 
+    def reached_stop(self) -> bool:
+        """Whether the last ``train.stop_patience`` iterations all had success >= ``train.stop_success``."""
+        threshold, patience = self.cfg.train.stop_success, self.cfg.train.stop_patience
+        recent = self.history[-patience:]
+        return threshold is not None and len(recent) == patience and all(r["success_rate"] >= threshold for r in recent)
+
     def train(self) -> list[dict[str, float]]:
         """Runs the remaining iterations, checkpointing after each; returns the metrics history."""
         cfg = self.cfg
@@ -292,7 +360,7 @@ class Trainer:
             unit="it",
             disable=not cfg.logging.progress,
         )
-        while self.iteration < cfg.train.iterations:
+        while self.iteration < cfg.train.iterations and not self.reached_stop():
             row = self.iteration_step()
             tick = time.perf_counter()
             self.history.append(row)
@@ -302,12 +370,76 @@ class Trainer:
             if logger is not None:
                 for key, value in row.items():
                     logger.add_scalar(key, value, row["iteration"])
-            bar.set_postfix(success=f"{row['success_rate']:.2f}", lam=f"{row['lambda']:.3g}", d_g=f"{row['d_g']:.3f}")
+            postfix = {"success": f"{row['success_rate']:.2f}", "train": f"{row['train_success_rate']:.2f}"}
+            postfix.update({key: f"{row[key]:.3g}" for key in ("lambda", "d_g") if key in row})
+            bar.set_postfix(postfix)
             bar.update(1)
         bar.close()
+        if self.reached_stop():
+            print(
+                f"stopped early after iteration {self.iteration - 1}: success rate >= {cfg.train.stop_success} "
+                f"for {cfg.train.stop_patience} iterations (train.stop_success)"
+            )
         if logger is not None:
             logger.close()
         return self.history
+
+
+class _IterationStats:
+    """Accumulates an iteration's diagnostics over its chunks and updates (tensors, one float at the end)."""
+
+    CURRICULUM = {  # sampled-batch entry (from the sampler's info) -> metrics column
+        "diversity": "diversity",
+        "proximity": "proximity",
+        "tradeoff": "lambda_mean",
+        "diversity_spread": "diversity_spread",
+        "proximity_spread": "proximity_spread",
+        "diversity_decided": "diversity_decided",
+    }
+
+    def __init__(self) -> None:
+        self.success, self.distance, self.off_table = [], [], []
+        self.trajectories, self.first_observations = [], []
+        self.losses: dict[str, list[float]] = {}
+        self.clipped: list[torch.Tensor] = []
+        self.curriculum: dict[str, list[torch.Tensor]] = {}
+
+    def add_episodes(self, rollout, geometry) -> None:
+        final = rollout["next", "achieved_goal"][:, -1]
+        self.success.append(rollout["next", "is_success"][:, -1].float().reshape(-1))
+        self.distance.append(torch.linalg.vector_norm(final - rollout["desired_goal"][:, -1], dim=-1))
+        if geometry is not None:
+            self.off_table.append(geometry.below_table(final).float())
+        self.trajectories.append(torch.cat([rollout["achieved_goal"][:, :1], rollout["next", "achieved_goal"]], dim=1))
+        self.first_observations.append(rollout["observation"][:, 0])
+
+    def add_update(self, losses: dict[str, float], batch, agent: DDPGAgent) -> None:
+        for key, value in losses.items():
+            self.losses.setdefault(key, []).append(value)
+        self.clipped.append(torch.stack(agent.clipped_fraction(batch["observation"], batch["desired_goal"])))
+        for key in self.CURRICULUM:
+            if key in batch.keys():
+                self.curriculum.setdefault(key, []).append(batch.get(key)[0])
+
+    def achieved(self) -> torch.Tensor:
+        return torch.cat(self.trajectories)
+
+    def initial_observations(self) -> torch.Tensor:
+        return torch.cat(self.first_observations)
+
+    def row(self) -> dict[str, float]:
+        row = {
+            "train_success_rate": float(torch.cat(self.success).mean()),
+            "train_final_distance": float(torch.cat(self.distance).mean()),
+        }
+        if self.off_table:
+            row["object_off_table"] = float(torch.cat(self.off_table).mean())
+        row.update({key: float(np.mean(values)) for key, values in self.losses.items()})
+        if self.clipped:
+            observation, goal = torch.stack(self.clipped).mean(0).tolist()
+            row.update(observation_clipped=observation, goal_clipped=goal)
+        row.update({self.CURRICULUM[key]: float(torch.stack(v).float().mean()) for key, v in self.curriculum.items()})
+        return row
 
 
 def _tensorboard(run_dir: Path):

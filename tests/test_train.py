@@ -14,7 +14,26 @@ from envs import TASKS
 from gchgg import checkpoint, train
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
-ALGOS = ("her", "hgg", "ghgg", "cher", "gchgg")
+ALGOS = ("her", "hgg", "ghgg", "cher", "gchgg", "gchgg_code")
+DIAGNOSTICS = ("train_success_rate", "train_final_distance", "observation_clipped", "goal_clipped")
+CURRICULUM = ("diversity", "proximity", "lambda_mean", "diversity_spread", "proximity_spread", "diversity_decided")
+
+
+def expected_columns(task: str, algo: str) -> set[str]:
+    """The metrics columns (besides timings) a run of ``algo`` on ``task`` writes."""
+    columns = {"iteration", "success_rate", "env_steps", "warmup", "stopped", "loss_actor", "loss_value", *DIAGNOSTICS}
+    columns |= {"pred_value", "target_value"}
+    if task != "reach":
+        columns.add("object_off_table")
+    if algo in ("hgg", "ghgg", "gchgg", "gchgg_code"):
+        columns.add("d_g")
+    if algo in ("cher", "gchgg", "gchgg_code"):
+        columns.add("lambda")
+    if algo == "cher":
+        columns |= {"diversity", "proximity", "lambda_mean"}  # CHER's greedy selection reports its scores too
+    if algo.startswith("gchgg"):
+        columns |= set(CURRICULUM)
+    return columns
 
 
 def tiny(tmp_path: Path, iterations: int = 1) -> list[str]:
@@ -60,9 +79,12 @@ def test_every_algo_runs_on_every_task_through_the_entry_point(task, algo, tmp_p
     assert [int(r["env_steps"]) for r in rows] == [2 * steps, 4 * steps]
     for r in rows:
         assert 0.0 <= float(r["success_rate"]) <= 1.0
-        for key in ("loss_actor", "loss_value", "lambda", "d_g"):
-            value = float(r[key])
+        assert {k for k in r if not k.startswith("seconds_")} == expected_columns(task, algo)
+        for key, text in r.items():
+            value = float(text)
             assert value == value and abs(value) != float("inf"), (key, value)  # finite, never NaN
+        for key in ("train_success_rate", "observation_clipped", "goal_clipped", "object_off_table", "diversity_decided"):
+            assert key not in r or 0.0 <= float(r[key]) <= 1.0, (key, r[key])
     saved = (run_dir / "config.yaml").read_text()
     assert f"name: {task}" in saved and f"name: {algo}" in saved
     assert checkpoint.load(run_dir / "checkpoint.pt")["iteration"] == 2

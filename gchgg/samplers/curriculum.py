@@ -17,7 +17,9 @@ from gchgg.samplers._storage import check_sampleable, dump_state, generator, loa
 from gchgg.samplers.energy import EnergySampler
 from gchgg.samplers.tradeoff import Tradeoff, as_tradeoff
 
-__all__ = ["GraphCurriculumSampler", "NearestNeighbours", "nearest_neighbour_distances"]
+__all__ = ["SCALES", "GraphCurriculumSampler", "NearestNeighbours", "curriculum_objective", "nearest_neighbour_distances"]
+
+SCALES = ("raw", "standardized")
 
 _BOUND_TOLERANCE = 1e-3  # metres: slack on the Euclidean lower bound (float32 rounding of |a|² + |b|² − 2a·b)
 _LEVEL_SLACK = 2  # levels added to every squared distance so float32 rounding never makes one negative
@@ -50,10 +52,25 @@ class GraphCurriculumSampler(Sampler):
         F_prox(A) = C − Σ_{g_i ∈ A} d(g_i, g*_i)                          (eq. 15, reported with C = 0)
 
     with g_i the transition's goal (``goal_key``, the hindsight goal it trains on) and g*_i the
-    goal its episode was collected for (``target_key``), and returns the indices of the best
-    candidate. ``info`` holds its ``diversity`` (F_div), ``proximity`` (F_prox) and ``tradeoff``
-    (λ); a ``TensorDictReplayBuffer`` copies them into every sampled row. C shifts every candidate
-    equally and does not change the choice.
+    target-task goal of its episode (``target_key``), and returns the indices of the best
+    candidate. C shifts every candidate equally and does not change the choice. The goals whose
+    diversity is scored can be another stored key (``diversity_key``; the authors' code used the
+    transitions' achieved goals), and proximity can be measured between any two stored goals (the
+    authors' code: ``goal_key="achieved_goal", target_key="desired_goal"``, i.e. closeness to
+    success).
+
+    Scale. ``scale="raw"`` is the formula above untouched: both sums grow with B, and their spreads
+    across the candidates, not λ's nominal value, decide which term wins (on push_new the F_prox
+    spread is ~40x the F_div spread, so any λ above ~0.03 picks the best-proximity candidate).
+    ``scale="standardized"`` divides F_div and F_prox by their standard deviation across the K
+    candidates of the sample (a term that does not vary is left as is), so λ = 1 weighs the two
+    equally and a schedule's λ keeps its meaning as a ratio.
+
+    ``info`` (a ``TensorDictReplayBuffer`` copies it into every sampled row) holds the chosen
+    candidate's ``diversity`` (F_div) and ``proximity`` (F_prox, raw), the ``tradeoff`` λ, and
+    three diagnostics of the choice: ``diversity_spread`` and ``proximity_spread``, the standard
+    deviations across the K candidates of the two terms as they enter F (F_div and λ·F_prox, after
+    scaling), and ``diversity_decided``, 1.0 when the chosen candidate is not the best-F_prox one.
 
     Distances that are ``inf`` (a goal off the graph: outside the field, inside an inflated
     obstacle, or cut off) never produce NaN: in F_prox such a distance counts as
@@ -105,15 +122,20 @@ class GraphCurriculumSampler(Sampler):
 
     Args:
         metric: object with ``distance(a, b)`` on goals ``[..., 3]`` → ``[...]`` (``GoalGraph`` for
-            GC-HGG, ``EuclideanMetric`` for the Euclidean ablation), used for F_prox and F_div.
+            GC-HGG, ``EuclideanMetric`` for the Euclidean ablation), used for F_prox (and F_div
+            unless ``diversity_metric`` is given).
         num_candidates: K ≥ 1 candidate batches per sample. Default 8.
         tradeoff: λ ≥ 0 as a number or a schedule (:class:`~gchgg.samplers.AdaptiveTradeoff` for
             eq. 20, :class:`~gchgg.samplers.ExponentialTradeoff` for eq. 4), read at every sample.
 
     Keyword Args:
-        goal_key: stored goal each transition trains on. Default ``"desired_goal"``.
-        target_key: stored goal proximity is measured to. Default ``"target_goal"`` (eq. 15); the
-            original code measured from the transition's achieved goal (``"achieved_goal"``).
+        goal_key: stored goal proximity is measured from. Default ``"desired_goal"`` (the goal each
+            transition trains on, eq. 15).
+        target_key: stored goal proximity is measured to. Default ``"target_goal"`` (eq. 15: the
+            episode's target-task goal; with HGG store T* under its own key and name it here).
+        diversity_key: stored goals whose nearest-neighbour distances make F_div. Default:
+            ``goal_key``.
+        scale: ``"raw"`` (default) or ``"standardized"``, see "Scale".
         energy_key: stored EBP energy; ``None`` (default) draws candidates uniformly.
         diversity_metric: metric of F_div if it differs from ``metric`` (the original code used
             Euclidean nearest neighbours). Default: ``metric``.
@@ -154,6 +176,8 @@ class GraphCurriculumSampler(Sampler):
         *,
         goal_key: NestedKey = "desired_goal",
         target_key: NestedKey = "target_goal",
+        diversity_key: NestedKey | None = None,
+        scale: str = "raw",
         energy_key: NestedKey | None = None,
         diversity_metric=None,
         neighbours: int | None = 3,
@@ -175,6 +199,8 @@ class GraphCurriculumSampler(Sampler):
             and unreachable_distance >= 0
         ):
             raise ValueError(f"unreachable_distance must be a finite number >= 0 or None, got {unreachable_distance!r}")
+        if scale not in SCALES:
+            raise ValueError(f"scale must be one of {SCALES}, got {scale!r}")
         if isinstance(draw_ahead, bool) or not isinstance(draw_ahead, int) or draw_ahead < 1:
             raise ValueError(f"draw_ahead must be an integer >= 1 (samples scored together), got {draw_ahead!r}")
         self.metric = metric
@@ -183,6 +209,8 @@ class GraphCurriculumSampler(Sampler):
         self.tradeoff = as_tradeoff(tradeoff)
         self.goal_key = goal_key
         self.target_key = target_key
+        self.diversity_key = goal_key if diversity_key is None else diversity_key
+        self.scale = scale
         self.energy_key = energy_key
         self.unreachable_distance = unreachable_distance
         self.draw_ahead = draw_ahead
@@ -215,11 +243,15 @@ class GraphCurriculumSampler(Sampler):
         ahead, pool.next = pool.next, pool.next + 1
         lam = float(self.tradeoff.value)  # read now: λ may change between samples of one pool
         diversity, proximity = pool.diversity[ahead], pool.proximity[ahead]
-        best = int(torch.argmax(diversity + lam * proximity))
+        div_term, prox_term = curriculum_objective(diversity, proximity, lam, self.scale)
+        best = int(torch.argmax(div_term + prox_term))
         info = {
             "diversity": diversity[best],
             "proximity": proximity[best],
             "tradeoff": torch.tensor(lam, dtype=torch.float32),
+            "diversity_spread": div_term.std(correction=0),
+            "proximity_spread": prox_term.std(correction=0),
+            "diversity_decided": torch.tensor(float(best != int(torch.argmax(proximity)))),
         }
         return pool.index[ahead, best], info
 
@@ -235,7 +267,7 @@ class GraphCurriculumSampler(Sampler):
         rows = self._stored_rows(storage, index, n)  # [A, K, B, 7]: shortlist point (6), goal-to-target distance
         goals = None
         if not self._nearest.snaps:
-            goals = read_field(storage, self.goal_key, index, self).reshape(a * k, b, -1)
+            goals = read_field(storage, self.diversity_key, index, self).reshape(a * k, b, -1)
         nearest = self._nearest.from_points(rows[..., :_TO_TARGET].reshape(a * k, b, _TO_TARGET), goals)
         diversity = nearest.nan_to_num(posinf=0.0).sum(-1).view(a, k)  # eq. 19: no finite neighbour adds nothing
         proximity = -self._finite(rows[..., _TO_TARGET]).sum(-1)  # eq. 15 with C = 0, [A, K]
@@ -278,7 +310,8 @@ class GraphCurriculumSampler(Sampler):
             return
         goals = read_field(storage, self.goal_key, fresh, self)
         targets = read_field(storage, self.target_key, fresh, self)
-        cache[fresh, :_TO_TARGET] = self._nearest.points(goals)
+        diverse = goals if self.diversity_key == self.goal_key else read_field(storage, self.diversity_key, fresh, self)
+        cache[fresh, :_TO_TARGET] = self._nearest.points(diverse)
         cache[fresh, _TO_TARGET] = _check(self.metric.distance(goals, targets), "metric")
 
     def _forget(self, index) -> None:
@@ -319,6 +352,7 @@ class GraphCurriculumSampler(Sampler):
             neighbours=self.neighbours,
             unreachable_distance=self.unreachable_distance,
             draw_ahead=self.draw_ahead,
+            scale=self.scale,
             tradeoff=dict(self.tradeoff.state_dict()),
         )
 
@@ -327,6 +361,7 @@ class GraphCurriculumSampler(Sampler):
         self.neighbours = None if state_dict["neighbours"] is None else int(state_dict["neighbours"])
         self.unreachable_distance = state_dict["unreachable_distance"]
         self.draw_ahead = int(state_dict.get("draw_ahead", self.draw_ahead))
+        self.scale = state_dict.get("scale", self.scale)
         self.tradeoff.load_state_dict(state_dict["tradeoff"])
         self._empty()
 
@@ -339,8 +374,39 @@ class GraphCurriculumSampler(Sampler):
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}(metric={self.metric!r}, num_candidates={self.num_candidates}, "
-            f"tradeoff={self.tradeoff!r}, energy_key={self.energy_key!r}, neighbours={self.neighbours})"
+            f"tradeoff={self.tradeoff!r}, scale={self.scale!r}, energy_key={self.energy_key!r}, "
+            f"neighbours={self.neighbours})"
         )
+
+
+def curriculum_objective(
+    diversity: torch.Tensor, proximity: torch.Tensor, tradeoff: float, scale: str = "raw"
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The two terms of F(A) = F_div(A) + λ·F_prox(A) (Alg. 1, eq. 3) for K candidates ``[..., K]``.
+
+    ``scale="raw"`` returns ``(F_div, λ·F_prox)``; ``"standardized"`` first divides each term by its
+    standard deviation across the K candidates (population std; a term with zero spread is left as
+    it is, so the result is never NaN). The chosen candidate is ``argmax`` of their sum.
+
+    >>> div, prox = torch.tensor([1.0, 2.0, 3.0]), torch.tensor([-30.0, -20.0, -10.0])
+    >>> [t.tolist() for t in curriculum_objective(div, prox, 0.5)]
+    [[1.0, 2.0, 3.0], [-15.0, -10.0, -5.0]]
+    >>> d, p = curriculum_objective(torch.tensor([1.0, 2.0]), torch.tensor([-4.0, -8.0]), 1.0, "standardized")
+    >>> d.tolist(), p.tolist()
+    ([2.0, 4.0], [-2.0, -4.0])
+    """
+    if scale == "standardized":
+        diversity = diversity / _spread(diversity)
+        proximity = proximity / _spread(proximity)
+    elif scale != "raw":
+        raise ValueError(f"scale must be one of {SCALES}, got {scale!r}")
+    return diversity, tradeoff * proximity
+
+
+def _spread(x: torch.Tensor) -> torch.Tensor:
+    """Standard deviation across the last dimension, 1 where it is 0 (or not finite)."""
+    std = x.std(-1, correction=0, keepdim=True)
+    return torch.where(torch.isfinite(std) & (std > 0), std, torch.ones_like(std))
 
 
 def nearest_neighbour_distances(
