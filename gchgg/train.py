@@ -71,6 +71,7 @@ def check_config(cfg: DictConfig) -> None:
         "train.stop_patience",
     ):  # fmt: skip
         check_positive(setting, OmegaConf.select(cfg, setting), integer=True)
+    check_positive("checkpoint.every", cfg.checkpoint.every, integer=True)
     for setting in ("train.updates", "train.warmup_steps", "her.k", "threads"):
         check_positive(setting, OmegaConf.select(cfg, setting), integer=True, allow_zero=True)
     for setting in ("agent.actor_lr", "agent.critic_lr", "env.threshold", "agent.target_update_every"):
@@ -364,7 +365,8 @@ class Trainer:
             row = self.iteration_step()
             tick = time.perf_counter()
             self.history.append(row)
-            self.save()
+            if self.iteration % cfg.checkpoint.every == 0 or self.iteration == cfg.train.iterations or self.reached_stop():
+                self.save()
             row["seconds_checkpoint"] = time.perf_counter() - tick  # in the CSV; in the next checkpoint
             self.write_metrics()
             if logger is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -399,3 +400,82 @@ def test_curriculum_cache_follows_overwrites_and_buffer_writes(graph):
     buffer.empty()
     buffer.extend(goal_transitions(100, seed=3))
     assert (buffer.sample()["index"] < 100).all()
+
+
+# ----------------------------------------------------------------------------- Alg. 1's choice
+
+
+def reference_objective(metric, goals, targets, tradeoff, scale):
+    """F of each candidate ``[K]`` from all-pairs metric distances (goals, targets ``[K, B, 3]``)."""
+    pairs = metric.distance(goals.unsqueeze(2), goals.unsqueeze(1))  # [K, B, B]
+    pairs = pairs + torch.diag(torch.full((goals.shape[1],), math.inf))  # j != i
+    nearest = pairs.min(-1).values
+    f_div = torch.where(torch.isfinite(nearest), nearest, 0.0).sum(-1)  # eq. 19
+    f_prox = -metric.distance(goals, targets).sum(-1)  # eq. 15, C = 0
+    if scale == "standardized":
+        f_div = f_div / f_div.std(correction=0)
+        f_prox = f_prox / f_prox.std(correction=0)
+    return f_div + tradeoff * f_prox
+
+
+@pytest.mark.parametrize("scale", ["raw", "standardized"])
+@pytest.mark.parametrize("metric_name", ["graph", "euclidean"])
+def test_returned_batch_is_the_argmax_of_F_over_the_candidates(scale, metric_name, graph):
+    # Uniform candidates are torch.randint(n, (draw_ahead, K, B)) from the buffer's generator (see
+    # the class docstring): replaying that draw gives the K candidates of each sample, scored here
+    # independently from all pairs; λ changes between samples of one drawn-ahead pool.
+    metric = graph if metric_name == "graph" else EuclideanMetric()
+    data = goal_transitions(3000, seed=4)
+    on_graph = torch.isfinite(graph.distance(data["desired_goal"], data["target_goal"]))
+    data = data[on_graph]
+    data["row"] = torch.arange(len(data))
+    n, k, b, ahead = len(data), 6, 48, 4
+    schedule = AdaptiveTradeoff(eta=100.0, sigma=0.3)
+    sampler = GraphCurriculumSampler(metric, k, schedule, neighbours=3, draw_ahead=ahead, scale=scale)
+    buffer = make_buffer(sampler, data, seed=11, batch=b)
+    candidates = torch.randint(n, (ahead, k, b), generator=torch.Generator().manual_seed(11))
+    goals, targets = data["desired_goal"][candidates], data["target_goal"][candidates]
+    for sample, distance in enumerate([math.inf, 0.3, 0.05, 0.6]):  # λ = 0, 3.6, 57, 0.0015
+        lam = schedule.update(distance=distance)
+        batch = buffer.sample()
+        chosen = [i for i in range(k) if torch.equal(candidates[sample, i], batch["row"])]
+        assert chosen, "the batch is not one of the drawn candidates"
+        objective = reference_objective(metric, goals[sample], targets[sample], lam, scale)
+        assert objective[chosen[0]] >= objective.max() - 1e-5 * objective.abs().max(), (sample, objective, chosen)
+        best_proximity = int((-metric.distance(goals[sample], targets[sample]).sum(-1)).argmax())
+        assert batch["diversity_decided"][0].item() == float(chosen[0] != best_proximity)
+
+
+@pytest.fixture(scope="module")
+def recorded_push_new():
+    """6,000 transitions drawn uniformly from the buffer of a push_new gchgg run after 7 iterations
+    (tests/data/push_new_buffer.pt: desired, task and achieved goals, EBP energy) and a push_new graph."""
+    import envs
+
+    stored = torch.load(Path(__file__).parent / "data" / "push_new_buffer.pt")
+    geometry = envs.geometry("push_new")
+    push_graph = GoalGraph(geometry.field, geometry.obstacles, n=(21, 21, 6), margin=0.02, cache_dir=None)
+    data = TensorDict({key: stored[key] for key in ("desired_goal", "task_goal", "achieved_goal", "energy")}, [6000])
+    return push_graph, data
+
+
+def test_standardized_scale_lets_diversity_decide(recorded_push_new):
+    # Raw sums: F_prox's spread across candidates dwarfs F_div's, so proximity decides at any λ that
+    # is not tiny. Standardized: λ = 1 weighs both equally.
+    push_graph, data = recorded_push_new
+    decided = {}
+    for scale in ("raw", "standardized"):
+        for lam in (0.1, 1.0, 10.0):
+            sampler = GraphCurriculumSampler(
+                push_graph, 8, lam, target_key="task_goal", energy_key="energy", scale=scale
+            )
+            buffer = make_buffer(sampler, data, seed=0, batch=256)
+            decided[scale, lam] = sum(buffer.sample()["diversity_decided"][0].item() for _ in range(64)) / 64
+    print("\nfraction of samples diversity decided (recorded push_new buffer, K = 8, B = 256, 64 samples):")
+    for (scale, lam), fraction in decided.items():
+        print(f"  {scale:12s} lambda={lam:<5g} {fraction:.2f}")
+    assert decided["raw", 1.0] <= 0.1 and decided["raw", 10.0] <= 0.05
+    assert decided["standardized", 0.1] >= 0.6
+    assert 0.2 <= decided["standardized", 1.0] <= 0.9
+    assert decided["standardized", 10.0] <= 0.3
+    assert decided["standardized", 1.0] > decided["raw", 1.0] + 0.2

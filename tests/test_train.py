@@ -90,7 +90,7 @@ def test_every_algo_runs_on_every_task_through_the_entry_point(task, algo, tmp_p
     assert checkpoint.load(run_dir / "checkpoint.pt")["iteration"] == 2
 
 
-@pytest.mark.parametrize("algo", ["her", "gchgg"])
+@pytest.mark.parametrize("algo", ["her", "gchgg", "gchgg_code"])
 def test_resumed_run_matches_uninterrupted_run(algo, tmp_path):
     base = ["env=reach", f"algo={algo}", *tiny(tmp_path)]
     whole, split = tmp_path / "whole", tmp_path / "split"
@@ -102,6 +102,32 @@ def test_resumed_run_matches_uninterrupted_run(algo, tmp_path):
         return [{k: v for k, v in row.items() if not k.startswith("seconds_")} for row in read_metrics(run_dir)]
 
     assert len(results(whole)) == 3
+    assert results(split) == results(whole)
+
+
+def test_run_killed_between_checkpoints_repeats_the_lost_iterations_identically(tmp_path, monkeypatch):
+    base = ["env=reach", "algo=gchgg", *tiny(tmp_path), "checkpoint.every=2", "train.iterations=4"]
+    whole, split = tmp_path / "whole", tmp_path / "split"
+    train.run(config(base), whole)
+
+    evaluate, calls = train.evaluate, []
+
+    def killed_in_the_fourth_iteration(*args):
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return evaluate(*args)
+
+    monkeypatch.setattr(train, "evaluate", killed_in_the_fourth_iteration)
+    with pytest.raises(KeyboardInterrupt):
+        train.run(config(base), split)
+    assert len(read_metrics(split)) == 3 and checkpoint.load(split / "checkpoint.pt")["iteration"] == 2
+    monkeypatch.setattr(train, "evaluate", evaluate)
+    train.run(config([*base, "resume=true"]), split)
+
+    def results(run_dir):
+        return [{k: v for k, v in row.items() if not k.startswith("seconds_")} for row in read_metrics(run_dir)]
+
     assert results(split) == results(whole)
 
 

@@ -101,7 +101,9 @@ class GraphCurriculumSampler(Sampler):
     λ of that moment; any write to the buffer (``extend``/``add``/``mark_update``) drops the
     candidates drawn before it, so every batch comes from the buffer as it is when sampled. This
     spreads the fixed cost of the many small tensor operations of a draw over the samples; the
-    draws are the same i.i.d. draws, and the same generator seed gives the same indices.
+    draws are the same i.i.d. draws, and the same generator seed gives the same indices (without
+    ``energy_key``, the candidates of the next ``draw_ahead`` samples are exactly
+    ``torch.randint(len(storage), (draw_ahead, K, B), generator=buffer_generator)``).
 
     Per-row cache. Each stored row's shortlist point (the goal's lattice vertex relative to the
     field's centre, its squared norm and its vertex index; see :meth:`NearestNeighbours.points`) and

@@ -1,0 +1,248 @@
+"""Curves and tables over seeds: median and interquartile range of a metric per group of runs.
+
+    python -m gchgg.plot RUN_OR_SWEEP_OR_CSV... [--out FIG.png] [--table TABLE.md] [--y success_rate]
+
+Each argument is a run folder (``metrics.csv`` and the ``config.yaml`` the trainer saves), a folder
+holding such runs at any depth (a sweep), or a ``metrics.csv``-style file. Runs are grouped by task
+and by the settings that differ between them, read from their saved configs (seed, paths and
+logging aside); a CSV without a config beside it is grouped by its name without its ``-seed<N>``
+suffix and its task is its folder's name (``docs/results/push_new/gchgg-seed0.csv`` → task
+``push_new``, group ``gchgg``). A run that stopped early
+(``train.stop_success``) holds its last value to the longest run's end.
+
+The figure has one panel per task and a median line with an interquartile band per group (Fig. 5
+of the paper). The table (Markdown) gives per group: runs, iterations to the first success rate
+≥ 0.5 and ≥ 0.9 (median [IQR] over runs; a run that never got there counts as never, and the
+table says how many did), success at chosen iterations and at the end, the iteration a run
+stopped at, the mean ``diversity_decided`` fraction where it was logged, and wall-clock hours.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Run", "find_runs", "group_runs", "iqr", "plot", "table"]
+
+_IGNORED = ("seed", "resume", "threads", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
+_SEED_SUFFIX = re.compile(r"-seed\d+$")
+
+
+@dataclass
+class Run:
+    """One training run: where it is, its settings (flattened config) and its ``metrics.csv`` rows."""
+
+    path: Path
+    task: str
+    settings: dict[str, str] = field(default_factory=dict)
+    rows: list[dict[str, float]] = field(default_factory=list)
+    label: str = ""
+
+    def column(self, name: str) -> np.ndarray:
+        """The column's values per iteration (NaN where a row lacks it)."""
+        return np.array([row.get(name, math.nan) for row in self.rows], dtype=float)
+
+    @property
+    def hours(self) -> float:
+        """Wall-clock hours of the logged iterations: the sum of the ``seconds_*`` columns."""
+        return sum(v for row in self.rows for k, v in row.items() if k.startswith("seconds_")) / 3600.0
+
+
+def _flatten(tree: dict, prefix: str = "") -> dict[str, str]:
+    out = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{name}."))
+        else:
+            out[name] = str(value)
+    return out
+
+
+def _read_rows(path: Path) -> list[dict[str, float]]:
+    with open(path, newline="") as f:
+        rows = [{k: float(v) for k, v in row.items() if v not in ("", None)} for row in csv.DictReader(f)]
+    if not rows or "success_rate" not in rows[0]:
+        raise ValueError(f"{path} is not a metrics.csv of a training run (no rows, or no success_rate column)")
+    return rows
+
+
+def load_run(path: str | Path) -> Run:
+    """A run from its folder (``metrics.csv`` + ``config.yaml``) or from a metrics CSV file."""
+    path = Path(path)
+    csv_path = path / "metrics.csv" if path.is_dir() else path
+    if not csv_path.is_file():
+        raise FileNotFoundError(f"no metrics.csv at {csv_path}: pass a run folder, a sweep folder or a CSV file")
+    config = csv_path.parent / "config.yaml" if path.is_dir() else csv_path.with_suffix(".yaml")
+    settings, task = {}, ""
+    if config.is_file():
+        import yaml
+
+        settings = _flatten(yaml.safe_load(config.read_text()) or {})
+        task = settings.get("env.name", "")
+    label = "" if settings else _SEED_SUFFIX.sub("", csv_path.stem)
+    task = task or csv_path.parent.name  # docs/results/push_new/gchgg-seed0.csv: task push_new
+    return Run(csv_path.parent if path.is_dir() else csv_path, task, settings, _read_rows(csv_path), label)
+
+
+def find_runs(paths: Iterable[str | Path]) -> list[Run]:
+    """Every run under ``paths`` (run folders, sweep folders searched recursively, or CSV files)."""
+    runs = []
+    for path in map(Path, paths):
+        if path.is_dir() and not (path / "metrics.csv").is_file():
+            found = sorted(p.parent for p in path.rglob("metrics.csv"))
+            if not found:
+                raise FileNotFoundError(f"no metrics.csv under {path}")
+            runs.extend(load_run(p) for p in found)
+        else:
+            runs.append(load_run(path))
+    return runs
+
+
+def group_runs(runs: Sequence[Run]) -> dict[tuple[str, str], list[Run]]:
+    """Runs by (task, label): the label names the settings that differ between runs of the same task
+    (``algo.name=gchgg, curriculum.scale=standardized``), or is the file name for runs without a config."""
+    groups: dict[tuple[str, str], list[Run]] = {}
+    by_task: dict[str, list[Run]] = {}
+    for run in runs:
+        by_task.setdefault(run.task, []).append(run)
+    for task, members in by_task.items():
+        configured = [r for r in members if r.settings]
+        keys = sorted({k for r in configured for k in r.settings if not k.startswith(_IGNORED)})
+        differing = [k for k in keys if len({r.settings.get(k) for r in configured}) > 1]
+        for run in members:
+            if run.settings:
+                label = ", ".join(f"{k}={run.settings.get(k)}" for k in differing) or run.settings.get("algo.name", "run")
+                label = label.replace("algo.name=", "")
+            else:
+                label = run.label
+            groups.setdefault((task, label), []).append(run)
+    return groups
+
+
+def iqr(values: Sequence[float]) -> tuple[float, float, float]:
+    """``(median, first quartile, third quartile)`` (linear interpolation; ``inf`` allowed).
+
+    >>> iqr([1.0, 2.0, 3.0, 4.0])
+    (2.5, 1.75, 3.25)
+    """
+    values = np.sort(np.asarray(values, dtype=float))
+    if len(values) == 0:
+        return (math.nan,) * 3
+    q = []
+    for p in (0.5, 0.25, 0.75):  # numpy's percentile turns inf - inf into NaN; interpolate by hand
+        pos = p * (len(values) - 1)
+        lo, hi = int(math.floor(pos)), int(math.ceil(pos))
+        frac = pos - lo
+        q.append(values[lo] if frac == 0 or values[lo] == values[hi] else values[lo] + frac * (values[hi] - values[lo]))
+    return float(q[0]), float(q[1]), float(q[2])
+
+
+def curves(runs: Sequence[Run], column: str) -> np.ndarray:
+    """``[runs, iterations]`` values of ``column``, each run held at its last value to the longest run's end."""
+    length = max(len(r.rows) for r in runs)
+    out = np.full((len(runs), length), math.nan)
+    for i, run in enumerate(runs):
+        values = run.column(column)
+        out[i, : len(values)] = values
+        if len(values):
+            out[i, len(values) :] = values[-1]
+    return out
+
+
+def first_at(run: Run, threshold: float, column: str = "success_rate") -> float:
+    """The first iteration whose ``column`` is ≥ ``threshold`` (``inf`` if none)."""
+    for row in run.rows:
+        if row.get(column, -math.inf) >= threshold:
+            return row["iteration"]
+    return math.inf
+
+
+def _fmt(stats: tuple[float, float, float], digits: int | None = None) -> str:
+    def one(v: float) -> str:
+        if v == math.inf:
+            return "never"
+        return "—" if math.isnan(v) else (f"{v:g}" if digits is None else f"{v:.{digits}f}")
+
+    median, low, high = stats
+    return f"{one(median)} [{one(low)}, {one(high)}]"
+
+
+def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150), column: str = "success_rate") -> str:
+    """A Markdown table per group: runs, iterations to ≥ 0.5 / ≥ 0.9, success at ``at`` and at the end, ..."""
+    head = ["task", "group", "runs", "first ≥ 0.5", "first ≥ 0.9", *(f"{column} at {i}" for i in at)]
+    head += [f"final {column}", "stopped at", "diversity decided", "hours"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for (task, label), runs in sorted(groups.items()):
+        reached = {t: [first_at(r, t, column) for r in runs] for t in (0.5, 0.9)}
+        cells = [task, label, str(len(runs))]
+        for t in (0.5, 0.9):
+            n = sum(math.isfinite(v) for v in reached[t])
+            cells.append(f"{_fmt(iqr(reached[t]))} ({n}/{len(runs)})")
+        values = curves(runs, column)
+        for i in at:
+            cells.append(_fmt(iqr(values[:, i]), 2) if i < values.shape[1] else "—")
+        cells.append(_fmt(iqr([r.column(column)[-1] for r in runs]), 2))
+        cells.append(_fmt(iqr([r.rows[-1]["iteration"] for r in runs])))
+        decided = [np.nanmean(r.column("diversity_decided")) for r in runs if "diversity_decided" in r.rows[-1]]
+        cells.append(f"{np.mean(decided):.2f}" if decided else "—")
+        cells.append(_fmt(iqr([r.hours for r in runs]), 2))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(groups: dict[tuple[str, str], list[Run]], out: str | Path, column: str = "success_rate") -> None:
+    """One panel per task: median and interquartile band of ``column`` per group against iteration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = sorted({task for task, _ in groups})
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 4), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        for (t, label), runs in sorted(groups.items()):
+            if t != task:
+                continue
+            values = curves(runs, column)
+            x = np.arange(values.shape[1])
+            stats = np.array([iqr(values[:, i]) for i in x])
+            (line,) = ax.plot(x, stats[:, 0], label=f"{label} (n={len(runs)})")
+            ax.fill_between(x, stats[:, 1], stats[:, 2], color=line.get_color(), alpha=0.2)
+        ax.set_title(task or "runs")
+        ax.set_xlabel("iteration")
+        ax.set_ylabel(column)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("paths", nargs="+", help="run folders, sweep folders or metrics CSV files")
+    parser.add_argument("--out", help="figure file (PNG, PDF, SVG)")
+    parser.add_argument("--table", help="Markdown table file (printed either way)")
+    parser.add_argument("--y", default="success_rate", help="metric column to plot and tabulate")
+    parser.add_argument("--at", type=int, nargs="*", default=[70, 100, 150], help="iterations the table reports")
+    args = parser.parse_args(argv)
+    groups = group_runs(find_runs(args.paths))
+    text = table(groups, args.at, args.y)
+    print(text, end="")
+    if args.table:
+        Path(args.table).write_text(text)
+    if args.out:
+        plot(groups, args.out, args.y)
+        print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,73 @@
+"""Curves and tables over seeds (gchgg.plot) on hand-made run folders: grouping, medians, quartiles."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import pytest
+
+from gchgg import plot
+
+
+def make_run(folder, algo, seed, success, scale="raw", extra=None):
+    folder.mkdir(parents=True)
+    (folder / "config.yaml").write_text(
+        f"seed: {seed}\nenv:\n  name: push_new\nalgo:\n  name: {algo}\ncurriculum:\n  scale: {scale}\n"
+        f"logging:\n  progress: false\n"
+    )
+    with open(folder / "metrics.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["iteration", "success_rate", "seconds_update", *(extra or {})])
+        for i, s in enumerate(success):
+            writer.writerow([i, s, 360.0, *(v[i] for v in (extra or {}).values())])
+
+
+@pytest.fixture
+def sweep(tmp_path):
+    make_run(tmp_path / "a0", "ghgg", 0, [0.0, 0.5, 0.9, 0.95])
+    make_run(tmp_path / "a1", "ghgg", 1, [0.0, 0.2, 0.6, 0.7])
+    make_run(tmp_path / "a2", "ghgg", 2, [0.0, 0.0, 0.1])  # shorter: held at 0.1
+    make_run(tmp_path / "b0", "gchgg", 0, [0.1, 0.9, 1.0], extra={"diversity_decided": [0.2, 0.4, 0.6]})
+    make_run(tmp_path / "b1", "gchgg", 1, [0.0, 0.0, 0.5], scale="standardized")
+    return tmp_path
+
+
+def test_runs_are_grouped_by_the_settings_that_differ(sweep):
+    groups = plot.group_runs(plot.find_runs([sweep]))
+    assert sorted(label for _, label in groups) == [
+        "gchgg, curriculum.scale=raw", "gchgg, curriculum.scale=standardized", "ghgg, curriculum.scale=raw"]
+    assert [r.settings["seed"] for r in groups["push_new", "ghgg, curriculum.scale=raw"]] == ["0", "1", "2"]
+
+
+def test_medians_quartiles_and_first_iterations(sweep):
+    groups = plot.group_runs(plot.find_runs([sweep]))
+    runs = groups["push_new", "ghgg, curriculum.scale=raw"]
+    values = plot.curves(runs, "success_rate")
+    assert values[2].tolist() == [0.0, 0.0, 0.1, 0.1]  # held at its last value
+    assert plot.iqr(values[:, 3]) == pytest.approx((0.7, 0.4, 0.825))
+    assert [plot.first_at(r, 0.5) for r in runs] == [1, 2, math.inf]
+    assert plot.iqr([1, 2, math.inf]) == (2.0, 1.5, math.inf)
+    text = plot.table(groups, at=(1, 3))
+    row = next(line for line in text.splitlines() if "| ghgg" in line)
+    assert "| 3 | 2 [1.5, never] (2/3) | never [never, never] (1/3) | 0.20 [0.10, 0.35] | 0.70 [0.40, 0.82] |" in row
+    assert row.endswith("| 0.40 [0.35, 0.40] |")  # hours: 4, 4, 3 rows of 360 s
+    gchgg = next(line for line in text.splitlines() if "gchgg, curriculum.scale=raw" in line)
+    assert "| 0.40 |" in gchgg  # mean diversity_decided
+
+
+def test_csv_files_group_by_name_and_the_cli_writes_figure_and_table(tmp_path, capsys):
+    for seed, rates in enumerate([[0.0, 1.0], [0.0, 0.5]]):
+        with open(tmp_path / f"her-seed{seed}.csv", "w") as f:
+            f.write("iteration,success_rate\n" + "".join(f"{i},{r}\n" for i, r in enumerate(rates)))
+    plot.main([str(tmp_path / "her-seed0.csv"), str(tmp_path / "her-seed1.csv"), "--out", str(tmp_path / "f.png"),
+               "--table", str(tmp_path / "t.md"), "--at", "1"])
+    assert (tmp_path / "f.png").stat().st_size > 1000
+    text = (tmp_path / "t.md").read_text()
+    assert f"| {tmp_path.name} | her | 2 | 1 [1, 1] (2/2) | never [never, never] (1/2) | 0.75 [0.62, 0.88] |" in text
+    assert "her" in capsys.readouterr().out
+
+
+def test_a_folder_without_runs_is_a_clear_error(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no metrics.csv under"):
+        plot.find_runs([tmp_path])
