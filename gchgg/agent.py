@@ -42,6 +42,7 @@ __all__ = [
     "GoalConditionedCritic",
     "HindsightDDPGLoss",
     "RunningNormalizer",
+    "load_policy",
     "make_ddpg_networks",
 ]
 
@@ -719,6 +720,12 @@ class DDPGAgent:
 
     # -- checkpointing --------------------------------------------------------------------------
 
+    def policy_state(self) -> dict[str, Any]:
+        """What acting needs, and nothing else: the sizes and the online actor's weights and
+        normalisers (a copy). :func:`load_policy` turns it back into an actor."""
+        hparams = {k: self.hparams[k] for k in ("obs_dim", "goal_dim", "action_dim", "hidden", "norm_std_min", "norm_clip")}
+        return {"hparams": hparams, "actor": {k: v.detach().clone() for k, v in self.actor.state_dict().items()}}
+
     def state_dict(self) -> dict[str, Any]:
         """Everything an exact resume needs: networks, target networks, normalisers, optimisers and
         the update counter. Like :meth:`torch.nn.Module.state_dict`, tensors are references: copy
@@ -765,6 +772,26 @@ class DDPGAgent:
                 f"observation and goal must share their leading shape, got {tuple(observation.shape)} "
                 f"and {tuple(goal.shape)}"
             )
+
+
+def load_policy(state: dict[str, Any]) -> GoalConditionedActor:
+    """The deterministic actor ``actor(observation, goal) -> action`` of a :meth:`DDPGAgent.policy_state`
+    (normalisation included), in eval mode.
+
+    Raises:
+        KeyError: the state lacks ``hparams`` or ``actor``.
+    """
+    missing = {"hparams", "actor"} - set(state)
+    if missing:
+        raise KeyError(f"policy state is missing {sorted(missing)}; was it written by DDPGAgent.policy_state()?")
+    h = state["hparams"]
+    actor, _ = make_ddpg_networks(
+        h["obs_dim"], h["goal_dim"], h["action_dim"], tuple(h["hidden"]),
+        norm_std_min=h["norm_std_min"], norm_clip=h["norm_clip"],
+    )  # fmt: skip
+    module = actor.module
+    module.load_state_dict(state["actor"])
+    return module.eval()
 
 
 class _AgentPolicy(nn.Module):

@@ -22,8 +22,10 @@ All algorithm logic lives in the parts (``envs``, ``gchgg.graph``, ``gchgg.hgg``
 from __future__ import annotations
 
 import csv
+import logging
 import math
 import os
+import subprocess
 import time
 from functools import partial
 from pathlib import Path
@@ -56,8 +58,10 @@ from gchgg.hgg import estimate_max_distance  # noqa: E402
 from gchgg.rollout import collect, evaluate  # noqa: E402
 from gchgg.samplers import GraphCurriculumSampler  # noqa: E402
 
+log = logging.getLogger(__name__)
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 CHECKPOINT = "checkpoint.pt"
+POLICY = "policy.pt"  # the actor alone, beside each checkpoint: what evaluation and export load
 METRICS = "metrics.csv"
 MAX_DIS_RESETS = 1000  # resets over which HGG's max_dis (largest initial-to-target distance) is taken
 NORMALIZER_SOURCES = ("sampled", "collected")
@@ -330,7 +334,16 @@ class Trainer:
         self.eval_env.set_random_state(state["eval_env_random"])
 
     def save(self) -> None:
+        """The checkpoint, then the policy snapshot (task, config and actor: megabytes, not the buffer)."""
         checkpoint.save(self.state_dict(), self.run_dir / CHECKPOINT)
+        policy = {
+            "iteration": self.iteration,
+            "task": self.cfg.env.name,
+            "threshold": float(self.cfg.env.threshold),
+            "config": OmegaConf.to_container(self.cfg, resolve=True),
+            "policy": self.agent.policy_state(),
+        }
+        checkpoint.save(policy, self.run_dir / POLICY)
 
     def write_metrics(self) -> None:
         """Rewrites ``metrics.csv`` from the history (so a resumed run never holds rows twice)."""
@@ -354,6 +367,8 @@ class Trainer:
         """Runs the remaining iterations, checkpointing after each; returns the metrics history."""
         cfg = self.cfg
         logger = _tensorboard(self.run_dir) if cfg.logging.tensorboard else None
+        if logger is not None:
+            logger.add_text("startup", "```\n" + startup_record(cfg) + "\n```", self.iteration)
         bar = tqdm(
             total=cfg.train.iterations,
             initial=self.iteration,
@@ -453,6 +468,32 @@ def _tensorboard(run_dir: Path):
     return SummaryWriter(str(run_dir / "tensorboard"))
 
 
+def versions() -> dict[str, str]:
+    """Installed versions of the packages a result depends on."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for package in ("gchgg", "torch", "torchrl", "tensordict", "mujoco", "dm-control", "hydra-core"):
+        try:
+            out[package] = version(package)
+        except PackageNotFoundError:
+            out[package] = "not installed"
+    try:  # the commit of the checkout the code runs from, "+dirty" with uncommitted changes
+        git = ["git", "-C", str(CONF_DIR.parent)]
+        commit = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout
+        dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True).stdout
+        out["commit"] = commit.strip() + ("+dirty" if dirty.strip() else "")
+    except (OSError, subprocess.CalledProcessError):
+        out["commit"] = "unknown (not a git checkout)"
+    return out
+
+
+def startup_record(cfg: DictConfig) -> str:
+    """The run's resolved settings and the installed versions, as logged once at start-up."""
+    packages = ", ".join(f"{k} {v}" for k, v in versions().items())
+    return f"versions: {packages}\nresolved config:\n{OmegaConf.to_yaml(cfg, resolve=True)}"
+
+
 def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
     """Trains with ``cfg`` in ``run_dir`` (resuming from its checkpoint when ``cfg.resume``)."""
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -464,6 +505,7 @@ def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
         )
     trainer = Trainer(cfg, run_dir)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    log.info(startup_record(cfg))
     if cfg.resume and path.exists():
         trainer.load_state_dict(checkpoint.load(path))
         print(f"resumed {run_dir} after iteration {trainer.iteration}")
