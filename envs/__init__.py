@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from envs.geometry import GEOMETRY, TASKS, Box, TaskGeometry, geometry
+from envs.layout import observation_layout
 from envs.reward import reward
 
 
@@ -35,4 +36,4 @@ def make(name: str, num_envs: int = 1, seed=None, **options):
     return KukaEnv(name, num_envs=num_envs, seed=seed, **options)
 
 
-__all__ = ["GEOMETRY", "TASKS", "Box", "TaskGeometry", "geometry", "load", "make", "reward"]
+__all__ = ["GEOMETRY", "TASKS", "Box", "TaskGeometry", "geometry", "load", "make", "observation_layout", "reward"]

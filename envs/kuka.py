@@ -19,6 +19,7 @@ from dm_control.suite import base
 from dm_env import specs
 
 from envs.geometry import Box, TaskGeometry
+from envs.layout import NO_OBJECT, WITH_OBJECT, observation_size
 from envs.reward import DEFAULT_THRESHOLD, reward
 
 CONTROL_TIMESTEP = 0.05  # seconds per control step (20 Hz): 25 physics steps of 0.002 s
@@ -152,11 +153,11 @@ def _uniform(random: np.random.RandomState, box: Box) -> np.ndarray:
 class KukaTask(base.Task):
     """A goal-conditioned KUKA task: reach a goal with the grip site, or bring the object to it.
 
-    Observations (Fetch-style) are an ordered dict of ``observation`` (25 values with an object:
-    grip position, object position, object position relative to the grip, finger openings, object
-    Euler angles, object linear velocity relative to the grip, object angular velocity, grip
-    velocity, finger velocities, velocities times the control timestep; 10 values without:
-    grip position, finger openings, grip velocity, finger velocities), ``achieved_goal`` (object
+    Observations (Fetch-style) are an ordered dict of ``observation`` (25 values with an object,
+    10 without, laid out as :mod:`envs.layout` names them: grip position, object position, object
+    position relative to the grip, finger openings, object Euler angles, object linear velocity
+    relative to the grip, object angular velocity, grip velocity, finger velocities; velocities
+    times the control timestep), ``achieved_goal`` (object
     or grip position), ``desired_goal`` and ``is_success``. The reward is :func:`envs.reward`.
 
     Args:
@@ -173,7 +174,8 @@ class KukaTask(base.Task):
         self.threshold = float(threshold)
         self.has_object = geometry.object_range is not None
         self.action_dim = geometry.action_dim
-        self.obs_dim = 25 if self.has_object else 10
+        self.layout = WITH_OBJECT if self.has_object else NO_OBJECT  # named slices of the observation
+        self.obs_dim = observation_size(self.layout)
         self._low, self._high = _workspace(geometry)
 
     # -- episode set-up -------------------------------------------------------------------------
@@ -237,24 +239,21 @@ class KukaTask(base.Task):
         fingers = physics.finger_positions()
         grip_vel = physics.grip_velocity() * CONTROL_TIMESTEP
         finger_vel = physics.finger_velocities() * CONTROL_TIMESTEP
+        part = self.layout
+        observation[part["grip_position"]] = grip
+        observation[part["finger_positions"]] = fingers
+        observation[part["grip_velocity"]] = grip_vel
+        observation[part["finger_velocities"]] = finger_vel
         if not self.has_object:
-            observation[0:3] = grip
-            observation[3:5] = fingers
-            observation[5:8] = grip_vel
-            observation[8:10] = finger_vel
             achieved_goal[:] = grip
             return
         obj = physics.object_position()
         lin, ang = physics.object_velocity()
-        observation[0:3] = grip
-        observation[3:6] = obj
-        observation[6:9] = obj - grip
-        observation[9:11] = fingers
-        observation[11:14] = _quat_to_euler(physics.object_quaternion())
-        observation[14:17] = lin * CONTROL_TIMESTEP - grip_vel
-        observation[17:20] = ang * CONTROL_TIMESTEP
-        observation[20:23] = grip_vel
-        observation[23:25] = finger_vel
+        observation[part["object_position"]] = obj
+        observation[part["object_relative"]] = obj - grip
+        observation[part["object_rotation"]] = _quat_to_euler(physics.object_quaternion())
+        observation[part["object_velocity"]] = lin * CONTROL_TIMESTEP - grip_vel
+        observation[part["object_angular_velocity"]] = ang * CONTROL_TIMESTEP
         achieved_goal[:] = obj
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:

@@ -18,6 +18,8 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
+from envs.layout import NO_OBJECT, WITH_OBJECT
+
 _STEP = 0.05  # metres of motion per unit action (the env's action scale)
 _FINGER_OPEN = 0.0425  # metres: a finger's opening when fully open
 
@@ -45,7 +47,7 @@ def _move(grip: np.ndarray, target: np.ndarray, gain: float = 1.0) -> np.ndarray
 
 def reach(observation: np.ndarray, goal: np.ndarray) -> np.ndarray:
     """Move the grip straight to the goal."""
-    return _move(observation[:, 0:3], goal)
+    return _move(observation[:, NO_OBJECT["grip_position"]], goal)
 
 
 def pick_and_place(observation: np.ndarray, goal: np.ndarray, over_wall: bool = False) -> np.ndarray:
@@ -54,8 +56,10 @@ def pick_and_place(observation: np.ndarray, goal: np.ndarray, over_wall: bool = 
     With ``over_wall`` the cube is first lifted to ``_CARRY_HEIGHT`` and lowered only once it is
     behind the wall (y < ``_BEHIND_WALL``).
     """
-    grip, cube, rel = observation[:, 0:3], observation[:, 3:6], observation[:, 6:9]
-    opening = observation[:, 9:11].mean(axis=1)
+    part = WITH_OBJECT
+    grip, cube = observation[:, part["grip_position"]], observation[:, part["object_position"]]
+    rel = observation[:, part["object_relative"]]
+    opening = observation[:, part["finger_positions"]].mean(axis=1)
     distance = np.linalg.norm(rel, axis=1)
     held = (distance < 0.02) & (opening > 0.008) & (opening < 0.019)  # fingers closed on the cube
     at_cube = distance < 0.008
@@ -91,7 +95,7 @@ def push_around_wall(observation: np.ndarray, goal: np.ndarray) -> np.ndarray:
     of the wall. The grip pushes from behind the cube (opposite its direction to the sub-goal);
     when it is not there, it rises above the cube, moves behind it and comes down.
     """
-    grip, cube = observation[:, 0:3], observation[:, 3:6]
+    grip, cube = observation[:, WITH_OBJECT["grip_position"]], observation[:, WITH_OBJECT["object_position"]]
     n = len(cube)
     # South of the wall, and clear of the passage: pushed from the passage exit well south of the
     # wall's face, so that the hand behind the cube never scrapes the wall on the way to the goal.

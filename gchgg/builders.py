@@ -26,7 +26,7 @@ from gchgg.samplers import (
     GraphCurriculumSampler,
 )
 from gchgg.samplers.curriculum import SCALES
-from gchgg.transforms import EpisodeEnergy, GoalToNext, HindsightRelabel
+from gchgg.transforms import DEFAULT_DROP_KEYS, EpisodeEnergy, GoalToNext, HindsightRelabel, ObservationNoise
 
 METRICS = ("euclidean", "graph")
 SAMPLERS = ("uniform", "ebp", "curriculum", "cher")
@@ -173,10 +173,37 @@ def make_replay_buffer(
     )
 
 
-def make_relabel(reward_fn: Callable, *, k: int, strategy: str, generator: torch.Generator) -> Compose:
-    """EBP energy of each episode, then HER relabelling into (k+1)·T transitions per episode."""
+def make_relabel(
+    reward_fn: Callable, *, k: int, strategy: str, generator: torch.Generator, true_achieved_goal_key: str | None = None
+) -> Compose:
+    """EBP energy of each episode, then HER relabelling into (k+1)·T transitions per episode.
+
+    With ``true_achieved_goal_key`` (observation noise on), the energy and the rewards are computed
+    from the true achieved goal, the hindsight goals are the observed ones, and the true copy is not stored.
+    """
     check_positive("her.k", k, integer=True, allow_zero=True)
-    return Compose(EpisodeEnergy(), HindsightRelabel(reward_fn, k, strategy, generator=generator))
+    if true_achieved_goal_key is None:
+        return Compose(EpisodeEnergy(), HindsightRelabel(reward_fn, k, strategy, generator=generator))
+    drop = (*DEFAULT_DROP_KEYS, true_achieved_goal_key, ("next", true_achieved_goal_key))
+    return Compose(
+        EpisodeEnergy(achieved_goal_key=true_achieved_goal_key),
+        HindsightRelabel(
+            reward_fn, k, strategy, generator=generator, reward_achieved_goal_key=true_achieved_goal_key, drop_keys=drop
+        ),
+    )
+
+
+def make_observation_noise(layout, has_object: bool, std: float, generator: torch.Generator) -> ObservationNoise:
+    """Gaussian noise of ``std`` metres on the observed position the task's goal is about.
+
+    With an object: the object position and the object-relative position (one draw, so that
+    relative = object − grip still holds) and the achieved goal. Without one (reach): the grip
+    position and the achieved goal. ``layout`` is the task's named observation layout
+    (:func:`envs.observation_layout`).
+    """
+    check_positive("noise.object_std", std)
+    slices = [layout["object_position"], layout["object_relative"]] if has_object else [layout["grip_position"]]
+    return ObservationNoise(std, slices, generator=generator)
 
 
 def make_goal_generator(

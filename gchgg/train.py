@@ -39,6 +39,7 @@ import torch  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
+from torchrl.envs import TransformedEnv  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
@@ -47,6 +48,7 @@ from gchgg.agent import DDPGAgent  # noqa: E402
 from gchgg.builders import (  # noqa: E402
     check_choice,
     check_positive,
+    make_observation_noise,
     make_goal_generator,
     make_metric,
     make_relabel,
@@ -85,6 +87,8 @@ def check_config(cfg: DictConfig) -> None:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
             raise ValueError(f"{setting} must be a number in [0, 1], got {value!r}")
     check_positive("agent.noise_std", cfg.agent.noise_std, allow_zero=True)
+    check_positive("noise.object_std", cfg.noise.object_std, allow_zero=True)
+    check_positive("eval.noise_std", cfg.eval.noise_std, allow_zero=True)
     check_positive("agent.action_l2", cfg.agent.action_l2, allow_zero=True)
     if cfg.train.episodes % cfg.train.chunks:
         raise ValueError(
@@ -114,7 +118,7 @@ class Trainer:
         if cfg.threads:
             torch.set_num_threads(cfg.threads)
         torch.manual_seed(cfg.seed)
-        seeds = np.random.SeedSequence(cfg.seed).generate_state(5)
+        seeds = np.random.SeedSequence(cfg.seed).generate_state(7)
         self.explore_rng = torch.Generator().manual_seed(int(seeds[0]))
         her_rng = torch.Generator().manual_seed(int(seeds[1]))
         buffer_rng = torch.Generator().manual_seed(int(seeds[2]))
@@ -125,6 +129,17 @@ class Trainer:
         self.chunk_size = cfg.train.episodes // cfg.train.chunks
         self.env = envs.make(name, num_envs=self.chunk_size, seed=cfg.seed, threshold=cfg.env.threshold)
         self.eval_env = envs.make(name, num_envs=cfg.eval.episodes, seed=int(seeds[3]), threshold=cfg.env.threshold)
+        # Observation noise (a camera's error): the policy sees noisy positions; rewards, energy and the
+        # goal pool read the true achieved goal the noise transform keeps.
+        self.achieved_key, self.noise_generators = "achieved_goal", {}
+        for env_name, std, seed in (("env", cfg.noise.object_std, seeds[5]), ("eval_env", cfg.eval.noise_std, seeds[6])):
+            if std:
+                generator = torch.Generator().manual_seed(int(seed))
+                noise = make_observation_noise(envs.observation_layout(name), self.env.has_object, std, generator)
+                setattr(self, env_name, TransformedEnv(getattr(self, env_name), noise))
+                self.noise_generators[env_name] = generator
+        if cfg.noise.object_std:
+            self.achieved_key = "true_achieved_goal"  # ObservationNoise keeps the clean achieved goal there
 
         algo = cfg.algo
         self.metric = make_metric(
@@ -162,7 +177,11 @@ class Trainer:
             cfg.buffer.episodes, copies * self.steps, self.sampler, batch_size=cfg.train.batch_size, generator=buffer_rng
         )
         self.relabel = make_relabel(
-            partial(envs.reward, threshold=cfg.env.threshold), k=cfg.her.k, strategy=cfg.her.strategy, generator=her_rng
+            partial(envs.reward, threshold=cfg.env.threshold),
+            k=cfg.her.k,
+            strategy=cfg.her.strategy,
+            generator=her_rng,
+            true_achieved_goal_key=self.achieved_key if cfg.noise.object_std else None,
         )
         self.agent = DDPGAgent(
             self.env.obs_dim,
@@ -249,7 +268,7 @@ class Trainer:
                     act = partial(self.agent.act, explore=True, generator=self.explore_rng)
                 rollout = collect(self.env, act, self.steps, start)
             self.env_steps += rollout.numel()
-            stats.add_episodes(rollout, self.geometry if self.env.has_object else None)
+            stats.add_episodes(rollout, self.geometry if self.env.has_object else None, self.achieved_key)
             lap("rollout")
 
             rollout.set("task_goal", targets[rows].unsqueeze(1).expand(n, self.steps, 3))  # T*, for eq. 15
@@ -315,6 +334,7 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             "env_random": self.env.random_state(),
             "eval_env_random": self.eval_env.random_state(),
+            "noise_rng": {name: g.get_state() for name, g in self.noise_generators.items()},
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -332,6 +352,8 @@ class Trainer:
         torch.set_rng_state(state["torch_rng"])
         self.env.set_random_state(state["env_random"])
         self.eval_env.set_random_state(state["eval_env_random"])
+        for name, generator in self.noise_generators.items():
+            generator.set_state(state["noise_rng"][name])
 
     def save(self) -> None:
         """The checkpoint, then the policy snapshot (task, config and actor: megabytes, not the buffer)."""
@@ -421,13 +443,15 @@ class _IterationStats:
         self.clipped: list[torch.Tensor] = []
         self.curriculum: dict[str, list[torch.Tensor]] = {}
 
-    def add_episodes(self, rollout, geometry) -> None:
-        final = rollout["next", "achieved_goal"][:, -1]
+    def add_episodes(self, rollout, geometry, achieved_key: str = "achieved_goal") -> None:
+        """Training success, final distance, object off the table and the trajectories, from the
+        (true) achieved goals under ``achieved_key``."""
+        final = rollout["next", achieved_key][:, -1]
         self.success.append(rollout["next", "is_success"][:, -1].float().reshape(-1))
         self.distance.append(torch.linalg.vector_norm(final - rollout["desired_goal"][:, -1], dim=-1))
         if geometry is not None:
             self.off_table.append(geometry.below_table(final).float())
-        self.trajectories.append(torch.cat([rollout["achieved_goal"][:, :1], rollout["next", "achieved_goal"]], dim=1))
+        self.trajectories.append(torch.cat([rollout[achieved_key][:, :1], rollout["next", achieved_key]], dim=1))
         self.first_observations.append(rollout["observation"][:, 0])
 
     def add_update(self, losses: dict[str, float], batch, agent: DDPGAgent) -> None:

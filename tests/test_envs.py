@@ -339,3 +339,34 @@ def test_kuka_task_rejects_a_non_finite_action():
     with pytest.raises(ValueError, match="finite"):
         env.step(np.array([np.nan, 0.0, 0.0]))
     assert isinstance(env.physics, kuka.Physics)
+
+
+@pytest.mark.parametrize("name", envs.TASKS)
+def test_named_observation_slices_match_the_physics_read_outs(name):
+    env = envs.make(name, num_envs=2, seed=3)
+    td = env.reset()
+    for _ in range(5):  # moving, so that velocities are not zero
+        td = env.rand_step(td)["next"]
+    physics, observation = env.physics[1], td["observation"][1].double().numpy()
+    layout = envs.observation_layout(name)
+    assert sorted(s.start for s in layout.values()) == [s.start for s in sorted(layout.values(), key=lambda s: s.start)]
+    assert sum(s.stop - s.start for s in layout.values()) == env.obs_dim  # the slices tile the vector
+    dt = kuka.CONTROL_TIMESTEP
+    expected = {
+        "grip_position": physics.grip_position(),
+        "finger_positions": physics.finger_positions(),
+        "grip_velocity": physics.grip_velocity() * dt,
+        "finger_velocities": physics.finger_velocities() * dt,
+    }
+    if env.has_object:
+        linear, angular = physics.object_velocity()
+        expected.update(
+            object_position=physics.object_position(),
+            object_relative=physics.object_position() - physics.grip_position(),
+            object_velocity=linear * dt - physics.grip_velocity() * dt,
+            object_angular_velocity=angular * dt,
+        )
+    assert set(expected) <= set(layout)
+    for part, value in expected.items():
+        np.testing.assert_allclose(observation[layout[part]], value, atol=1e-5, err_msg=part)
+    np.testing.assert_allclose(td["achieved_goal"][1].numpy(), expected.get("object_position", expected["grip_position"]), atol=1e-5)

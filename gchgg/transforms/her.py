@@ -79,7 +79,11 @@ class HindsightRelabel(Transform):
         generator: ``torch.Generator`` for the goal draws (CPU); by default a fresh, randomly
             seeded one. Pass one for reproducible relabelling.
         goal_key: key of the goal the policy is conditioned on. Default ``"desired_goal"``.
-        achieved_goal_key: key of the achieved goal. Default ``"achieved_goal"``.
+        achieved_goal_key: key of the achieved goal (the hindsight goals' source). Default ``"achieved_goal"``.
+        reward_achieved_goal_key: key of the achieved goal the rewards are computed from; by default
+            ``achieved_goal_key``. With observation noise, the true achieved goal
+            (``"true_achieved_goal"``, see :class:`~gchgg.transforms.ObservationNoise`) keeps rewards true
+            to physics while the hindsight goals are the observed positions.
         target_key: key written with the goal the episode was collected for. Default ``"target_goal"``.
         reward_key: reward entry to overwrite (same shape and dtype). Default ``("next", "reward")``.
         drop_keys: entries not stored (missing ones are ignored). Default :data:`DEFAULT_DROP_KEYS`.
@@ -124,6 +128,7 @@ class HindsightRelabel(Transform):
         generator: torch.Generator | None = None,
         goal_key: NestedKey = "desired_goal",
         achieved_goal_key: NestedKey = "achieved_goal",
+        reward_achieved_goal_key: NestedKey | None = None,
         target_key: NestedKey = "target_goal",
         reward_key: NestedKey = ("next", "reward"),
         drop_keys: Sequence[NestedKey] = DEFAULT_DROP_KEYS,
@@ -147,6 +152,7 @@ class HindsightRelabel(Transform):
         self.generator = generator
         self.goal_key = goal_key
         self.achieved_goal_key = achieved_goal_key
+        self.reward_achieved_goal_key = achieved_goal_key if reward_achieved_goal_key is None else reward_achieved_goal_key
         self.target_key = target_key
         self.reward_key = reward_key
         self.drop_keys = tuple(drop_keys)
@@ -161,7 +167,8 @@ class HindsightRelabel(Transform):
         batch, steps = tensordict.shape[:-1], tensordict.shape[-1]
         copies = self.k + 1
         next_key = self._next(self.achieved_goal_key)
-        for key in (self.goal_key, next_key, self.reward_key):
+        reward_from = self._next(self.reward_achieved_goal_key)
+        for key in (self.goal_key, next_key, reward_from, self.reward_key):
             if key not in tensordict.keys(include_nested=True):
                 raise KeyError(
                     f"HindsightRelabel reads {key!r} from the episode, which has keys "
@@ -180,7 +187,8 @@ class HindsightRelabel(Transform):
         goals = torch.cat([goal.unsqueeze(-3), hindsight.to(goal.dtype)], dim=-3)  # [*batch, k+1, T, 3]
 
         old_reward = tensordict.get(self.reward_key)
-        reward = torch.as_tensor(self.reward_fn(achieved_next.unsqueeze(-3), goals))
+        reward_achieved = achieved_next if reward_from == next_key else tensordict.get(reward_from)
+        reward = torch.as_tensor(self.reward_fn(reward_achieved.unsqueeze(-3), goals))
         tail = old_reward.shape[len(batch) + 1 :]
         expected = (*batch, copies, steps)
         if reward.shape not in (torch.Size(expected), torch.Size((*expected, *tail))):
