@@ -7,6 +7,37 @@ from envs.layout import observation_layout
 from envs.reward import reward
 
 
+def task_seeds(seed: int | None, num_envs: int) -> list[int | None]:
+    """The seed of each simulation's task random state for env seed ``seed``.
+
+    Independent streams drawn from ``np.random.SeedSequence(seed)``; all ``None`` (fresh entropy)
+    when ``seed`` is ``None``. ``envs.load(name, seed=task_seeds(s, n)[i])`` reproduces simulation
+    ``i`` of ``envs.make(name, num_envs=n, seed=s)``.
+
+    >>> task_seeds(0, 2)
+    [2968811710, 3677149159]
+    """
+    import numpy as np
+
+    if seed is None:
+        return [None] * num_envs
+    return [int(s) for s in np.random.SeedSequence(seed).generate_state(num_envs)]
+
+
+def episode_seeds(seed: int, episodes: int, num_envs: int = 100) -> list[int]:
+    """Task seeds of ``episodes`` episodes run in batches of ``num_envs`` simulations, batch ``b``
+    seeded ``seed + b`` (as ``gchgg.evaluate`` runs them): a standalone controller that runs episode
+    ``j`` with ``envs.load(name, seed=episode_seeds(seed, N)[j])`` sees the same goals and objects.
+
+    >>> episode_seeds(0, 3, num_envs=2)[:2] == task_seeds(0, 2), episode_seeds(0, 3, num_envs=2)[2] == task_seeds(1, 1)[0]
+    (True, True)
+    """
+    out = []
+    for batch, start in enumerate(range(0, episodes, num_envs)):
+        out.extend(task_seeds(seed + batch, min(num_envs, episodes - start)))
+    return out
+
+
 def load(name: str, seed=None, **options):
     """The dm_control ``control.Environment`` of task ``name``.
 
@@ -36,4 +67,7 @@ def make(name: str, num_envs: int = 1, seed=None, **options):
     return KukaEnv(name, num_envs=num_envs, seed=seed, **options)
 
 
-__all__ = ["GEOMETRY", "TASKS", "Box", "TaskGeometry", "geometry", "load", "make", "observation_layout", "reward"]
+__all__ = [
+    "GEOMETRY", "TASKS", "Box", "TaskGeometry", "episode_seeds", "geometry", "load", "make", "observation_layout",
+    "reward", "task_seeds",
+]  # fmt: skip

@@ -8,20 +8,9 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from envs import kuka, suite
+from envs import kuka, suite, task_seeds
 from envs.geometry import geometry
 from envs.reward import reward
-
-
-def task_seeds(seed: int | None, num_envs: int) -> list[int | None]:
-    """The seed of each simulation's task random state for env seed ``seed``.
-
-    Independent streams drawn from ``np.random.SeedSequence(seed)``; all ``None`` (fresh entropy)
-    when ``seed`` is ``None``. ``envs.load(name, seed=task_seeds(s, n)[i])`` reproduces env ``i``.
-    """
-    if seed is None:
-        return [None] * num_envs
-    return [int(s) for s in np.random.SeedSequence(seed).generate_state(num_envs)]
 
 
 class KukaEnv(EnvBase):
@@ -44,7 +33,7 @@ class KukaEnv(EnvBase):
     Args:
         name: one of :data:`envs.TASKS`.
         num_envs: number of simulations N, >= 1.
-        seed: seed for the tasks' random states (see :func:`task_seeds`).
+        seed: seed for the tasks' random states (see :func:`envs.task_seeds`).
         **options: ``threshold`` (success distance in metres, default 0.05).
 
     >>> import torch

@@ -8,6 +8,7 @@ the first ``--video-episodes`` episodes through MuJoCo's offscreen renderer (``M
 default here, or ``osmesa``) with the goal marked (the green sphere), as MP4 or GIF via imageio.
 
     python -m gchgg.evaluate outputs/reach/her/seed0 --episodes 100 --video reach.mp4 --camera front
+    python -m gchgg.evaluate outputs/push_new/gchgg/seed0 --noise 0.01    # a camera's error on the object
 """
 
 from __future__ import annotations
@@ -44,25 +45,37 @@ def load_policy_file(run_dir: str | Path) -> dict:
     return checkpoint.load(path)
 
 
-def evaluate_policy(actor, task: str, episodes: int = 100, seed: int = 0, threshold: float = 0.05, num_envs: int = 100):
+def evaluate_policy(
+    actor, task: str, episodes: int = 100, seed: int = 0, threshold: float = 0.05, num_envs: int = 100,
+    noise_std: float = 0.0,
+) -> Evaluation:
     """Deterministic episodes of ``actor(observation, goal)`` on ``task``'s target goals.
 
-    Runs ``episodes`` episodes in batches of ``num_envs`` simulations seeded from ``seed``.
+    Runs ``episodes`` episodes in batches of ``num_envs`` simulations, batch ``b`` seeded ``seed + b``
+    (:func:`envs.episode_seeds` gives each episode's task seed). With ``noise_std`` the policy sees
+    the observed object position (and object-relative position; the grip in reach) with
+    N(0, noise_std²) noise, drawn from a generator seeded ``seed``; success is that of the true state.
     """
     import torch
+    from torchrl.envs import TransformedEnv
 
     import envs
+    from gchgg.builders import make_observation_noise
     from gchgg.rollout import collect
+
+    generator = torch.Generator().manual_seed(seed)
 
     done, successes, distances = 0, [], []
     batch = 0
     while done < episodes:
         n = min(num_envs, episodes - done)
         env = envs.make(task, num_envs=n, seed=seed + batch, threshold=threshold)
+        if noise_std:
+            env = TransformedEnv(env, make_observation_noise(envs.observation_layout(task), env.has_object, noise_std, generator))
         with torch.inference_mode():
             rollout = collect(env, actor, env.geometry.episode_length, env.reset())
         successes.append(rollout["next", "is_success"][:, -1].float().reshape(-1))
-        final = rollout["next", "achieved_goal"][:, -1]
+        final = rollout["next", "true_achieved_goal" if noise_std else "achieved_goal"][:, -1]
         distances.append(torch.linalg.vector_norm(final - rollout["desired_goal"][:, -1], dim=-1))
         done, batch = done + n, batch + 1
     return Evaluation(float(torch.cat(successes).mean()), float(torch.cat(distances).mean()), episodes)
@@ -126,6 +139,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("run_dir", help="a training run folder (holding policy.pt), or a policy.pt file")
     parser.add_argument("--episodes", type=int, default=100, help="evaluation episodes (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation goals")
+    parser.add_argument("--noise", type=float, default=0.0, help="std (m) of noise on the observed object position")
     parser.add_argument("--video", help="record episodes into this .mp4 or .gif file")
     parser.add_argument("--video-episodes", type=int, default=2, help="episodes recorded (default 2)")
     parser.add_argument("--camera", choices=CAMERAS, default="front")
@@ -141,10 +155,11 @@ def main(argv: list[str] | None = None) -> None:
     saved = load_policy_file(args.run_dir)
     actor = load_policy(saved["policy"])
     task, threshold = saved["task"], saved["threshold"]
-    result = evaluate_policy(actor, task, args.episodes, args.seed, threshold)
+    result = evaluate_policy(actor, task, args.episodes, args.seed, threshold, noise_std=args.noise)
     print(
         f"{task}: success rate {result.success_rate:.3f}, mean final distance {result.final_distance:.4f} m "
-        f"over {result.episodes} episodes (policy of iteration {saved['iteration'] - 1}, seed {args.seed})"
+        f"over {result.episodes} episodes (policy of iteration {saved['iteration'] - 1}, seed {args.seed}, "
+        f"observation noise {args.noise:g} m)"
     )
     if args.video:
         frames = record(actor, task, args.video, episodes=args.video_episodes, seed=args.seed, camera=args.camera,

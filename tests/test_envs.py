@@ -10,7 +10,7 @@ from torchrl.envs.utils import check_env_specs
 
 import envs
 from envs import kuka, scripted
-from envs.torchrl_env import task_seeds
+from envs import task_seeds
 
 TASKS = envs.TASKS
 OBJECT_TASKS = [name for name in TASKS if envs.geometry(name).object_range is not None]
