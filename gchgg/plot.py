@@ -13,8 +13,9 @@ suffix and its task is its folder's name (``docs/results/push_new/gchgg-seed0.cs
 The figure has one panel per task and a median line with an interquartile band per group (Fig. 5
 of the paper). The table (Markdown) gives per group: runs, iterations to the first success rate
 ≥ 0.5 and ≥ 0.9 (median [IQR] over runs; a run that never got there counts as never, and the
-table says how many did), success at chosen iterations and at the end, the iteration a run
-stopped at, the mean ``diversity_decided`` fraction where it was logged, and wall-clock hours.
+table says how many did), success at chosen iterations and at the end, a run's last iteration,
+the iteration HGG's stop condition switched it to target goals (``stopped``), the mean
+``diversity_decided`` fraction where it was logged, and wall-clock hours.
 """
 
 from __future__ import annotations
@@ -178,7 +179,7 @@ def _fmt(stats: tuple[float, float, float], digits: int | None = None) -> str:
 def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150), column: str = "success_rate") -> str:
     """A Markdown table per group: runs, iterations to ≥ 0.5 / ≥ 0.9, success at ``at`` and at the end, ..."""
     head = ["task", "group", "runs", "first ≥ 0.5", "first ≥ 0.9", *(f"{column} at {i}" for i in at)]
-    head += [f"final {column}", "stopped at", "diversity decided", "hours"]
+    head += [f"final {column}", "last iteration", "HGG stop", "diversity decided", "hours"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for (task, label), runs in sorted(groups.items()):
         reached = {t: [first_at(r, t, column) for r in runs] for t in (0.5, 0.9)}
@@ -191,6 +192,8 @@ def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100
             cells.append(_fmt(iqr(values[:, i]), 2) if i < values.shape[1] else "—")
         cells.append(_fmt(iqr([r.column(column)[-1] for r in runs]), 2))
         cells.append(_fmt(iqr([r.rows[-1]["iteration"] for r in runs])))
+        stops = [first_at(r, 1.0, "stopped") for r in runs if "stopped" in r.rows[-1]]
+        cells.append(f"{_fmt(iqr(stops))}" if stops else "—")
         decided = [np.nanmean(r.column("diversity_decided")) for r in runs if "diversity_decided" in r.rows[-1]]
         cells.append(f"{np.mean(decided):.2f}" if decided else "—")
         cells.append(_fmt(iqr([r.hours for r in runs]), 2))

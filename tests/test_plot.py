@@ -28,7 +28,7 @@ def sweep(tmp_path):
     make_run(tmp_path / "a0", "ghgg", 0, [0.0, 0.5, 0.9, 0.95])
     make_run(tmp_path / "a1", "ghgg", 1, [0.0, 0.2, 0.6, 0.7])
     make_run(tmp_path / "a2", "ghgg", 2, [0.0, 0.0, 0.1])  # shorter: held at 0.1
-    make_run(tmp_path / "b0", "gchgg", 0, [0.1, 0.9, 1.0], extra={"diversity_decided": [0.2, 0.4, 0.6]})
+    make_run(tmp_path / "b0", "gchgg", 0, [0.1, 0.9, 1.0], extra={"diversity_decided": [0.2, 0.4, 0.6], "stopped": [0, 0, 1]})
     make_run(tmp_path / "b1", "gchgg", 1, [0.0, 0.0, 0.5], scale="standardized")
     return tmp_path
 
@@ -51,9 +51,9 @@ def test_medians_quartiles_and_first_iterations(sweep):
     text = plot.table(groups, at=(1, 3))
     row = next(line for line in text.splitlines() if "| ghgg" in line)
     assert "| 3 | 2 [1.5, never] (2/3) | never [never, never] (1/3) | 0.20 [0.10, 0.35] | 0.70 [0.40, 0.82] |" in row
-    assert row.endswith("| 0.40 [0.35, 0.40] |")  # hours: 4, 4, 3 rows of 360 s
+    assert row.endswith("| — | — | 0.40 [0.35, 0.40] |")  # no HGG stop logged; hours: 4, 4, 3 rows of 360 s
     gchgg = next(line for line in text.splitlines() if "gchgg, curriculum.scale=raw" in line)
-    assert "| 0.40 |" in gchgg  # mean diversity_decided
+    assert "| 2 [2, 2] | 0.40 |" in gchgg  # HGG stop at iteration 2, mean diversity_decided
 
 
 def test_csv_files_group_by_name_and_the_cli_writes_figure_and_table(tmp_path, capsys):
