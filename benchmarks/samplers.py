@@ -52,6 +52,7 @@ def relabel(generator: torch.Generator) -> tuple[EpisodeEnergy, HindsightRelabel
 def memory() -> None:
     env = envs.make("push_new", num_envs=2, seed=0)
     rollout = env.rollout(env_steps(env), break_when_any_done=False)
+    rollout.set("task_goal", rollout["desired_goal"].clone())  # T*, stored by the trainer for eq. 15
     energy, her = relabel(torch.Generator().manual_seed(0))
     transitions = her(energy(rollout))
     per_transition = transitions.bytes() / transitions.numel()
