@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 from tensordict import TensorDict
-from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
+from torchrl.data import LazyMemmapStorage, LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
 
 from gchgg.graph import EuclideanMetric, GoalGraph
 from gchgg.samplers import (
@@ -479,3 +479,33 @@ def test_standardized_scale_lets_diversity_decide(recorded_push_new):
     assert 0.2 <= decided["standardized", 1.0] <= 0.9
     assert decided["standardized", 10.0] <= 0.3
     assert decided["standardized", 1.0] > decided["raw", 1.0] + 0.2
+
+
+@pytest.mark.parametrize("storage_cls", [LazyTensorStorage, LazyMemmapStorage])
+@pytest.mark.parametrize("name", ["ebp", "curriculum", "cher"])
+def test_dumps_and_loads_continue_with_the_same_batches(name, storage_cls, tmp_path):
+    # Saved at any point of a drawn-ahead pool (draw_ahead = 8: after 0, 3, 8 and 9 samples), a
+    # restored buffer returns the batches the original would have returned.
+    def sampler():
+        return {
+            "ebp": lambda: EnergySampler("energy"),
+            "curriculum": lambda: GraphCurriculumSampler(EuclideanMetric(), 4, AdaptiveTradeoff(), energy_key="energy"),
+            "cher": lambda: CherSampler(EuclideanMetric(), pool_size=200, tradeoff=1.0),
+        }[name]()
+
+    def buffer():
+        return TensorDictReplayBuffer(storage=storage_cls(4000), sampler=sampler(), batch_size=64,
+                                      generator=torch.Generator().manual_seed(1))
+
+    data = goal_transitions(3000, energy=torch.rand(3000, generator=torch.Generator().manual_seed(2)))
+    for before in (0, 3, 8, 9):
+        original = buffer()
+        original.extend(data)
+        for _ in range(before):
+            original.sample()
+        folder = tmp_path / f"{before}"
+        original.dumps(folder)
+        restored = buffer()
+        restored.loads(folder)
+        for _ in range(10):
+            assert torch.equal(original.sample()["index"], restored.sample()["index"]), before

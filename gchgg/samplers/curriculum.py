@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ class _Pool:
     proximity: torch.Tensor
     batch_size: int
     stored: int  # len(storage) when drawn
+    rng_state: torch.Tensor  # the generator's state before the draw: the pool can be drawn again from it
     next: int = 0
 
 
@@ -103,7 +105,10 @@ class GraphCurriculumSampler(Sampler):
     spreads the fixed cost of the many small tensor operations of a draw over the samples; the
     draws are the same i.i.d. draws, and the same generator seed gives the same indices (without
     ``energy_key``, the candidates of the next ``draw_ahead`` samples are exactly
-    ``torch.randint(len(storage), (draw_ahead, K, B), generator=buffer_generator)``).
+    ``torch.randint(len(storage), (draw_ahead, K, B), generator=buffer_generator)``). The
+    sampler's ``state_dict`` (and so TorchRL's ``dumps``) keeps the generator state the current
+    candidates were drawn from and how many of them were used, so a restored buffer draws them
+    again and continues with the same batches.
 
     Per-row cache. Each stored row's shortlist point (the goal's lattice vertex relative to the
     field's centre, its squared norm and its vertex index; see :meth:`NearestNeighbours.points`) and
@@ -223,6 +228,7 @@ class GraphCurriculumSampler(Sampler):
         self._known = 0
         self._pending: list[torch.Tensor] = []
         self._pool: _Pool | None = None  # scored candidates of the next samples, dropped at every write
+        self._saved_pool: dict | None = None  # a loaded state's pool, drawn again at the next sample
 
     @property
     def neighbours(self) -> int | None:
@@ -235,6 +241,8 @@ class GraphCurriculumSampler(Sampler):
 
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         n = check_sampleable(storage, self)
+        if self._saved_pool is not None:
+            self._pool = self._restore_pool(storage, n, batch_size)
         pool = self._pool
         if (
             pool is None
@@ -257,9 +265,11 @@ class GraphCurriculumSampler(Sampler):
         }
         return pool.index[ahead, best], info
 
-    def _score(self, storage: Storage, n: int, b: int) -> _Pool:
-        """Draw and score the candidate batches of the next ``draw_ahead`` samples."""
-        rng = generator(self)
+    def _score(self, storage: Storage, n: int, b: int, rng: torch.Generator | None = None) -> _Pool:
+        """Draw and score the candidate batches of the next ``draw_ahead`` samples (with the buffer's
+        generator, or ``rng`` to draw a saved pool again)."""
+        rng = generator(self) if rng is None else rng
+        rng_state = rng.get_state()
         a, k = self.draw_ahead, self.num_candidates
         if self._energy is not None:
             self._energy._rng = rng
@@ -273,7 +283,19 @@ class GraphCurriculumSampler(Sampler):
         nearest = self._nearest.from_points(rows[..., :_TO_TARGET].reshape(a * k, b, _TO_TARGET), goals)
         diversity = nearest.nan_to_num(posinf=0.0).sum(-1).view(a, k)  # eq. 19: no finite neighbour adds nothing
         proximity = -self._finite(rows[..., _TO_TARGET]).sum(-1)  # eq. 15 with C = 0, [A, K]
-        return _Pool(index, diversity, proximity, b, n)
+        return _Pool(index, diversity, proximity, b, n, rng_state)
+
+    def _restore_pool(self, storage: Storage, n: int, b: int) -> _Pool | None:
+        """The pool a loaded state was in the middle of, drawn again from its saved generator state
+        (on a private generator: the buffer's own generator is restored by the buffer)."""
+        saved, self._saved_pool = self._saved_pool, None
+        if (saved["batch_size"], saved["stored"], saved["num_candidates"]) != (b, n, self.num_candidates):
+            return None  # the buffer or the request changed since: draw afresh
+        rng = torch.Generator()
+        rng.set_state(torch.frombuffer(bytearray(base64.b64decode(saved["rng_state"])), dtype=torch.uint8))
+        pool = self._score(storage, n, b, rng)
+        pool.next = int(saved["next"])
+        return pool
 
     def _finite(self, distance: torch.Tensor) -> torch.Tensor:
         """Goal-to-target distances ``[A, K, B]`` with ``inf`` replaced (per sample: its K·B draws)."""
@@ -319,7 +341,7 @@ class GraphCurriculumSampler(Sampler):
     def _forget(self, index) -> None:
         """Mark (re)written rows: their cache entries are recomputed at the next sample, and candidates
         drawn before the write are dropped."""
-        self._pool = None
+        self._pool = self._saved_pool = None
         if self._rows is None:
             return
         if isinstance(index, (int, torch.Tensor, np.ndarray)) and not torch.as_tensor(index).is_floating_point():
@@ -344,7 +366,7 @@ class GraphCurriculumSampler(Sampler):
             self._energy.mark_update(index)
 
     def _empty(self) -> None:
-        self._rows, self._known, self._pending, self._pool = None, 0, [], None
+        self._rows, self._known, self._pending, self._pool, self._saved_pool = None, 0, [], None, None
         if self._energy is not None:
             self._energy._empty()
 
@@ -356,7 +378,22 @@ class GraphCurriculumSampler(Sampler):
             draw_ahead=self.draw_ahead,
             scale=self.scale,
             tradeoff=dict(self.tradeoff.state_dict()),
+            pool=self._pool_state(),
         )
+
+    def _pool_state(self) -> dict | None:
+        """Where the candidates drawn ahead stand (not the candidates: the generator state they were
+        drawn from), so a restored buffer continues with the same batches."""
+        pool = self._pool
+        if pool is None or pool.next == len(pool.index):
+            return self._saved_pool
+        return {
+            "rng_state": base64.b64encode(pool.rng_state.numpy().tobytes()).decode("ascii"),
+            "next": pool.next,
+            "batch_size": pool.batch_size,
+            "stored": pool.stored,
+            "num_candidates": int(pool.index.shape[1]),
+        }
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self.num_candidates = int(state_dict["num_candidates"])
@@ -366,6 +403,7 @@ class GraphCurriculumSampler(Sampler):
         self.scale = state_dict.get("scale", self.scale)
         self.tradeoff.load_state_dict(state_dict["tradeoff"])
         self._empty()
+        self._saved_pool = state_dict.get("pool")
 
     def dumps(self, path) -> None:
         dump_state(self.state_dict(), path)
