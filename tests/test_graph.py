@@ -112,14 +112,46 @@ def test_across_wall_longer_and_equal_to_networkx(graph):
     assert error <= graph.resolution / 2 + 1e-6  # rounding in the table, plus float32 output
 
 
+def lattice_dijkstra(field, obstacles, n, margin):
+    """Free lattice points ``[V, 3]`` and their all-pairs shortest distances ``[V, V]`` (float64),
+    from a 26-connected adjacency built here with numpy and scipy's Dijkstra (not the graph's own)."""
+    from scipy.sparse import coo_matrix
+
+    (center, half), n = (np.asarray(v, dtype=float) for v in field), np.asarray(n)
+    spacing = 2 * half / (n - 1)
+    ijk = np.stack(np.meshgrid(*(np.arange(k) for k in n), indexing="ij"), -1).reshape(-1, 3)
+    points = center - half + ijk * spacing
+    blocked = np.zeros(len(points), dtype=bool)
+    for c, h in obstacles:
+        blocked |= np.all(np.abs(points - np.asarray(c)) <= np.asarray(h) + margin + 1e-9, axis=1)
+    number = np.full(len(points), -1)
+    number[~blocked] = np.arange((~blocked).sum())
+    grid = number.reshape(*n)
+    rows, cols, weights = [], [], []
+    for step in itertools.product((-1, 0, 1), repeat=3):
+        if not any(step):
+            continue
+        target = ijk + step
+        inside = np.all((target >= 0) & (target < n), axis=1)
+        a, b = number[inside], grid[tuple(target[inside].T)]
+        keep = (a >= 0) & (b >= 0)
+        rows.append(a[keep]), cols.append(b[keep])
+        weights.append(np.full(keep.sum(), np.linalg.norm(np.asarray(step) * spacing)))
+    v = int((~blocked).sum())
+    adjacency = coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(v, v))
+    return points[~blocked], dijkstra(adjacency.tocsr(), directed=True)
+
+
 def test_table_error_below_resolution_and_1mm():
     from envs.geometry import geometry
 
     task = geometry("push_new")
     graph = GoalGraph(task.field, task.obstacles, (16, 16, 6), 0.02, cache_dir=None)
-    exact = torch.from_numpy(dijkstra(graph.adjacency, directed=True))  # float64 [V, V]
-    i = torch.arange(graph.num_vertices)
-    got = graph.distance_between_vertices(i[:, None], i[None, :]).double()
+    points, exact = lattice_dijkstra(task.field, task.obstacles, (16, 16, 6), 0.02)
+    assert len(points) == graph.num_vertices
+    goals = torch.from_numpy(points).float()
+    exact = torch.from_numpy(exact)  # float64 [V, V]
+    got = graph.distance(goals[:, None], goals[None, :]).double()
     finite = exact.isfinite()
     assert torch.equal(finite, got.isfinite())
     error = (got - exact)[finite].abs().max().item()

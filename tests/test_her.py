@@ -198,3 +198,28 @@ def test_episode_energy_is_written_per_step():
     assert out["energy"].shape == (3, 5)
     torch.testing.assert_close(out["energy"], expected[:, None].expand(3, 5))
     assert out["energy"][0, 0] > 0
+
+
+def test_future_goals_are_uniform_over_the_remaining_steps_at_every_step():
+    # Chi-square per step t: the hindsight goal of a copy of step t is the next achieved goal of a
+    # step u uniform in {t, ..., T-1}; a draw that under-samples the last steps fails here.
+    from scipy.stats import chisquare
+
+    steps, episodes, k = 12, 3000, 4
+    index = torch.arange(steps, dtype=torch.float32)
+    achieved_next = torch.stack([index, torch.zeros(steps), torch.zeros(steps)], -1).expand(episodes, steps, 3)
+    data = TensorDict({
+        "observation": torch.zeros(episodes, steps, 2), "action": torch.zeros(episodes, steps, 1),
+        "achieved_goal": achieved_next - torch.tensor([1.0, 0.0, 0.0]), "desired_goal": torch.ones(episodes, steps, 3),
+        "next": {"observation": torch.zeros(episodes, steps, 2), "achieved_goal": achieved_next,
+                 "reward": -torch.ones(episodes, steps, 1)},
+    }, [episodes, steps])  # fmt: skip
+    her = HindsightRelabel(lambda a, g: -(torch.linalg.vector_norm(a - g, dim=-1) > 0.05).float(), k=k,
+                           generator=torch.Generator().manual_seed(0), flatten=False)
+    source = her(data)["desired_goal"][:, 1:, :, 0].long()  # [N, k, T]: u of each copy
+    for t in range(steps):
+        drawn = source[:, :, t].reshape(-1)
+        assert int(drawn.min()) >= t
+        counts = torch.bincount(drawn - t, minlength=steps - t).numpy()
+        if steps - t > 1:
+            assert chisquare(counts).pvalue > 1e-4, (t, counts)
