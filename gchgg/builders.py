@@ -217,8 +217,10 @@ def make_goal_generator(
     pool_size: int = 1000,
     c: float = 3.0,
     L: float = 5.0,
+    on_stop: Callable[[], None] | None = None,
 ) -> HGGGoalGenerator | None:
-    """``None`` (episodes go to the target goals) or an HGG goal generator with its trajectory pool."""
+    """``None`` (episodes go to the target goals) or an HGG goal generator with its trajectory pool;
+    ``on_stop`` is called once when its stop condition switches the run to target goals."""
     check_choice("goal_generator", kind, GOAL_GENERATORS)
     if kind == "none":
         return None
@@ -232,4 +234,5 @@ def make_goal_generator(
         gamma=gamma,
         stop_threshold=stop_threshold,
         success_threshold=success_threshold,
+        on_stop=on_stop,
     )

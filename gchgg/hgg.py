@@ -243,6 +243,13 @@ class GoalGeneration:
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
+    def tradeoff_distances(self) -> torch.Tensor | None:
+        """What a trade-off schedule (eq. 20) should see of this generation: the per-episode
+        intermediate-to-target distances when the goals came from the pool, ``None`` when the
+        episodes go to the targets themselves (the first iteration, or after the stop)."""
+        return self.distance if self.from_pool else None
+
+    @property
     def total_cost(self) -> float:
         """Sum of eq. 6 over the matched pairs: the quantity the matching minimises."""
         return float(self.cost.double().sum())
@@ -308,6 +315,7 @@ class HGGGoalGenerator:
         infinite_distance: float = INFINITE_DISTANCE,
         small_pool: Literal["repeat", "targets"] = "repeat",
         value_batch_size: int = 4096,
+        on_stop: Callable[[], None] | None = None,
     ) -> None:
         if not callable(getattr(metric, "distance", None)):
             raise TypeError(f"metric must have a distance(a, b) method (GoalGraph, EuclideanMetric), got {metric!r}")
@@ -339,6 +347,7 @@ class HGGGoalGenerator:
         self.small_pool = small_pool
         self.value_batch_size = int(value_batch_size)
         self.stopped = False
+        self.on_stop = on_stop
         self._by_vertex = callable(getattr(metric, "vertex_index", None)) and callable(
             getattr(metric, "distance_between_vertices", None)
         )
@@ -508,8 +517,10 @@ class HGGGoalGenerator:
     def _result(self, goals, matched, trajectory, step, cost, distance, targets, from_pool, timings, start) -> GoalGeneration:
         near = _euclidean(goals, targets) <= self.success_threshold  # Euclidean, as the success test
         inside = int(near.any(dim=1).sum()) / goals.shape[0]  # exact fraction: 15 / 50 == 0.3
-        if from_pool and self.stop_threshold is not None and inside > self.stop_threshold:
+        if from_pool and self.stop_threshold is not None and inside > self.stop_threshold and not self.stopped:
             self.stopped = True
+            if self.on_stop is not None:
+                self.on_stop()  # e.g. the curriculum sampler switches to plain sampling
         timings = {"value": 0.0, "distance": 0.0, "cost": 0.0, "matching": 0.0, **timings}
         timings["total"] = time.perf_counter() - start
         return GoalGeneration(

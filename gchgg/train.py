@@ -58,7 +58,6 @@ from gchgg.builders import (  # noqa: E402
 )
 from gchgg.hgg import estimate_max_distance  # noqa: E402
 from gchgg.rollout import collect, evaluate  # noqa: E402
-from gchgg.samplers import GraphCurriculumSampler  # noqa: E402
 
 log = logging.getLogger(__name__)
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
@@ -210,6 +209,8 @@ class Trainer:
                 pool_size=cfg.hgg.pool_size,
                 c=cfg.hgg.c,
                 L=cfg.hgg.L,
+                # GC-HGG: once HGG stops, the curriculum sampler samples plainly (the original's rule)
+                on_stop=self.sampler.stop_curriculum if algo.sampler == "curriculum" else None,
             )
         self.iteration = 0
         self.env_steps = 0
@@ -243,10 +244,7 @@ class Trainer:
         if self.goal_generator is not None:
             generation = self.goal_generator.generate(starts, targets, self.agent.value)
             row["d_g"] = generation.d_g
-            if generation.from_pool:
-                goals, distances = generation.goals, generation.distance
-            if self.goal_generator.stopped and isinstance(self.sampler, GraphCurriculumSampler):
-                self.sampler.num_candidates = 1  # plain (EBP) sampling once the curriculum has stopped
+            goals, distances = generation.goals, generation.tradeoff_distances
         if self.tradeoff is not None:
             row["lambda"] = float(self.tradeoff.begin_iteration(self.iteration, distances))
         lap("goals")
@@ -344,9 +342,7 @@ class Trainer:
         if self.tradeoff is not None:
             self.tradeoff.load_state_dict(state["tradeoff"])
         if self.goal_generator is not None:
-            self.goal_generator.load_state_dict(state["goal_generator"])
-            if self.goal_generator.stopped and isinstance(self.sampler, GraphCurriculumSampler):
-                self.sampler.num_candidates = 1
+            self.goal_generator.load_state_dict(state["goal_generator"])  # the sampler's state knows if it stopped
         self.relabel[-1].generator.set_state(state["her_rng"])
         self.explore_rng.set_state(state["explore_rng"])
         torch.set_rng_state(state["torch_rng"])

@@ -214,3 +214,16 @@ def test_bad_loop_settings_name_themselves(tmp_path):
         trainer(tmp_path, "curriculum.proximity=target")
     with pytest.raises(ValueError, match="tradeoff.update_every='episode' needs tradeoff=adaptive"):
         trainer(tmp_path, "tradeoff=fixed", algo="gchgg_code")
+
+
+def test_hggs_stop_switches_the_curriculum_to_plain_sampling_and_survives_resume(tmp_path):
+    # below any fraction: the first generation from the pool (iteration 1 on reach) stops HGG
+    t = trainer(tmp_path, "train.iterations=3", task="reach", algo="gchgg")
+    t.goal_generator.stop_threshold = -1.0
+    rows = t.train()
+    assert [row["stopped"] for row in rows] == [0.0, 1.0, 1.0]
+    assert t.sampler.num_candidates == 1
+    assert rows[2]["diversity_decided"] == 0.0 and rows[2]["diversity_spread"] == 0.0  # one candidate
+    resumed = trainer(tmp_path, "train.iterations=3", task="reach", algo="gchgg")
+    resumed.load_state_dict(t.state_dict())
+    assert resumed.goal_generator.stopped and resumed.sampler.num_candidates == 1

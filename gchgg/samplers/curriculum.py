@@ -230,6 +230,13 @@ class GraphCurriculumSampler(Sampler):
         self._pool: _Pool | None = None  # scored candidates of the next samples, dropped at every write
         self._saved_pool: dict | None = None  # a loaded state's pool, drawn again at the next sample
 
+    def stop_curriculum(self) -> None:
+        """From now on, plain sampling: one candidate per sample (EBP or uniform, as the candidates are
+        drawn), as GC-HGG does once HGG's stop condition switches the run to target goals. Kept in
+        ``state_dict``."""
+        self.num_candidates = 1
+        self._pool = self._saved_pool = None
+
     @property
     def neighbours(self) -> int | None:
         """Shortlist length of the nearest-neighbour search (``None``: all pairs)."""
