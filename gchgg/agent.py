@@ -36,6 +36,8 @@ from torch import nn
 from torchrl.modules import MLP
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
+from gchgg.validation import check_number
+
 __all__ = [
     "DDPGAgent",
     "GoalConditionedActor",
@@ -71,9 +73,9 @@ class RunningNormalizer(nn.Module):
 
     def __init__(self, size: int, std_min: float = 1e-2, clip: float = 5.0) -> None:
         super().__init__()
-        _check_int("size", size, minimum=1)
-        _check_positive("std_min", std_min)
-        _check_positive("clip", clip)
+        check_number("size", size, integer=True, low=1)
+        check_number("std_min", std_min, low=0, low_open=True)
+        check_number("clip", clip, low=0, low_open=True)
         self.size = int(size)
         self.std_min = float(std_min)
         self.clip = float(clip)
@@ -233,7 +235,7 @@ def make_ddpg_networks(
         (torch.Size([4, 2]), torch.Size([4, 1]))
     """
     for name, value in (("obs_dim", obs_dim), ("goal_dim", goal_dim), ("action_dim", action_dim)):
-        _check_int(name, value, minimum=1)
+        check_number(name, value, integer=True, low=1)
     hidden = tuple(hidden)
     if not hidden or not all(isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1 for h in hidden):
         raise ValueError(f"hidden must be a non-empty sequence of positive layer widths, got {hidden!r}")
@@ -304,10 +306,8 @@ class HindsightDDPGLoss(DDPGLoss):
         action_l2: float = 1.0,
         clip_return: bool = True,
     ) -> None:
-        if not 0.0 < gamma < 1.0:
-            raise ValueError(f"gamma must be in (0, 1), got {gamma!r}")
-        if not action_l2 >= 0.0:
-            raise ValueError(f"action_l2 must be >= 0, got {action_l2!r}")
+        check_number("gamma", gamma, low=0, high=1, low_open=True, high_open=True)
+        check_number("action_l2", action_l2, low=0)
         if len(actor_network.in_keys) != 2 or len(actor_network.out_keys) != 1:
             raise ValueError(
                 "actor_network must read [observation_key, goal_key] and write one action key, got "
@@ -529,13 +529,12 @@ class DDPGAgent:
         norm_clip: float = 5.0,
         generator: torch.Generator | None = None,
     ) -> None:
-        _check_positive("actor_lr", actor_lr)
-        _check_positive("critic_lr", critic_lr)
-        _check_unit_interval("polyak", polyak)
-        _check_int("target_update_every", target_update_every, minimum=1)
-        _check_unit_interval("random_eps", random_eps)
-        if not noise_std >= 0.0:
-            raise ValueError(f"noise_std must be >= 0, got {noise_std!r}")
+        check_number("actor_lr", actor_lr, low=0, low_open=True)
+        check_number("critic_lr", critic_lr, low=0, low_open=True)
+        check_number("polyak", polyak, low=0, high=1)
+        check_number("target_update_every", target_update_every, integer=True, low=1)
+        check_number("random_eps", random_eps, low=0, high=1)
+        check_number("noise_std", noise_std, low=0)
         self.obs_dim, self.goal_dim, self.action_dim = int(obs_dim), int(goal_dim), int(action_dim)
         self.gamma = float(gamma)
         self.polyak = float(polyak)
@@ -806,18 +805,3 @@ class _AgentPolicy(nn.Module):
         if self.random:
             return self.agent.random_action(observation.shape[:-1], self.generator)
         return self.agent.act(observation, goal, explore=self.explore, generator=self.generator)
-
-
-def _check_int(name: str, value: Any, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-
-
-def _check_positive(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not value > 0:
-        raise ValueError(f"{name} must be a number > 0, got {value!r}")
-
-
-def _check_unit_interval(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0.0 <= value <= 1.0:
-        raise ValueError(f"{name} must be in [0, 1], got {value!r}")

@@ -7,7 +7,6 @@ them first, so that a bad setting fails before training with a message naming it
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from gchgg.samplers import (
     GraphCurriculumSampler,
 )
 from gchgg.samplers.curriculum import SCALES
+from gchgg.validation import check_choice, check_number
 from gchgg.transforms import DEFAULT_DROP_KEYS, EpisodeEnergy, GoalToNext, HindsightRelabel, ObservationNoise
 
 METRICS = ("euclidean", "graph")
@@ -39,21 +39,9 @@ PROXIMITIES = {  # curriculum.proximity -> (stored goal measured from, stored go
 DIVERSITY_OF = {"goal": "desired_goal", "achieved": "achieved_goal"}  # curriculum.diversity_of -> stored key
 
 
-def check_choice(setting: str, value, allowed: Sequence[str]) -> str:
-    """``value`` if it is one of ``allowed``, else a ``ValueError`` naming the setting and the choices."""
-    if value not in allowed:
-        raise ValueError(f"{setting} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
-    return value
-
-
 def check_positive(setting: str, value, *, integer: bool = False, allow_zero: bool = False):
-    """``value`` if it is a finite number > 0 (>= 0 with ``allow_zero``), else a ``ValueError``."""
-    ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok_type or not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
-        kind = "an integer" if integer else "a number"
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{setting} must be {kind} {bound}, got {value!r}")
-    return value
+    """``value`` if it is a finite number > 0 (>= 0 with ``allow_zero``), else a ``ValueError`` naming the setting."""
+    return check_number(setting, value, integer=integer, low=0, low_open=not allow_zero)
 
 
 def make_metric(

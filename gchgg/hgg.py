@@ -45,7 +45,6 @@ Decisions where the paper is silent (the README's HGG section repeats them):
 from __future__ import annotations
 
 import math
-import numbers
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -54,6 +53,8 @@ from typing import Any, Literal
 import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
+
+from gchgg.validation import check_choice, check_number
 
 __all__ = ["GoalGeneration", "HGGGoalGenerator", "TrajectoryPool", "estimate_max_distance"]
 
@@ -97,10 +98,8 @@ class TrajectoryPool:
         *,
         device: torch.device | str | None = None,
     ) -> None:
-        if isinstance(capacity, bool) or not isinstance(capacity, numbers.Integral) or capacity < 1:
-            raise ValueError(f"capacity must be an integer >= 1 (trajectories held), got {capacity!r}")
-        if not _is_real(min_displacement) or not 0 <= min_displacement < math.inf:
-            raise ValueError(f"min_displacement must be a finite number of metres >= 0, got {min_displacement!r}")
+        check_number("capacity (trajectories held)", capacity, integer=True, low=1)
+        check_number("min_displacement (metres)", min_displacement, low=0)
         self.capacity = int(capacity)
         self.min_displacement = float(min_displacement)
         self.device = None if device is None else torch.device(device)
@@ -321,19 +320,16 @@ class HGGGoalGenerator:
             raise TypeError(f"metric must have a distance(a, b) method (GoalGraph, EuclideanMetric), got {metric!r}")
         if value_fn is not None and not callable(value_fn):
             raise TypeError(f"value_fn must be callable value(observation, goal) -> [B], got {value_fn!r}")
-        _check_positive("max_dis", max_dis)
-        _check_positive("c", c, allow_zero=True)
-        _check_positive("L", L)
-        _check_positive("success_threshold", success_threshold, allow_zero=True)
-        _check_positive("infinite_distance", infinite_distance)
-        if not _is_real(gamma) or not 0 <= gamma < 1:
-            raise ValueError(f"gamma must be a number in [0, 1), got {gamma!r}")
-        if stop_threshold is not None and (not _is_real(stop_threshold) or not 0 <= stop_threshold <= 1):
-            raise ValueError(f"stop_threshold must be a fraction in [0, 1] or None (never stop), got {stop_threshold!r}")
-        if small_pool not in _SMALL_POOL_CHOICES:
-            raise ValueError(f"small_pool must be one of {_SMALL_POOL_CHOICES}, got {small_pool!r}")
-        if isinstance(value_batch_size, bool) or not isinstance(value_batch_size, numbers.Integral) or value_batch_size < 1:
-            raise ValueError(f"value_batch_size must be an integer >= 1, got {value_batch_size!r}")
+        check_number("max_dis", max_dis, low=0, low_open=True)
+        check_number("c", c, low=0)
+        check_number("L", L, low=0, low_open=True)
+        check_number("success_threshold", success_threshold, low=0)
+        check_number("infinite_distance", infinite_distance, low=0, low_open=True)
+        check_number("gamma", gamma, low=0, high=1, high_open=True)
+        if stop_threshold is not None:
+            check_number("stop_threshold (a fraction, or None: never stop)", stop_threshold, low=0, high=1)
+        check_choice("small_pool", small_pool, _SMALL_POOL_CHOICES)
+        check_number("value_batch_size", value_batch_size, integer=True, low=1)
         self.metric = metric
         self.value_fn = value_fn
         self.pool = pool if pool is not None else TrajectoryPool()
@@ -574,11 +570,3 @@ def _euclidean(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.cdist(a, b, compute_mode="donot_use_mm_for_euclid_dist")
 
 
-def _is_real(x: Any) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
-
-
-def _check_positive(name: str, x: Any, allow_zero: bool = False) -> None:
-    if not _is_real(x) or x < 0 or (x == 0 and not allow_zero):
-        allowed = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{name} must be a finite number {allowed}, got {x!r}")

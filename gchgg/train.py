@@ -46,7 +46,6 @@ import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
 from gchgg.agent import DDPGAgent  # noqa: E402
 from gchgg.builders import (  # noqa: E402
-    check_choice,
     check_positive,
     make_observation_noise,
     make_goal_generator,
@@ -58,6 +57,7 @@ from gchgg.builders import (  # noqa: E402
 )
 from gchgg.hgg import estimate_max_distance  # noqa: E402
 from gchgg.rollout import collect, evaluate  # noqa: E402
+from gchgg.validation import check_choice, check_number  # noqa: E402
 
 log = logging.getLogger(__name__)
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
@@ -82,9 +82,7 @@ def check_config(cfg: DictConfig) -> None:
     for setting in ("agent.actor_lr", "agent.critic_lr", "env.threshold", "agent.target_update_every"):
         check_positive(setting, OmegaConf.select(cfg, setting))
     for setting in ("agent.gamma", "agent.polyak", "agent.random_eps"):
-        value = OmegaConf.select(cfg, setting)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
-            raise ValueError(f"{setting} must be a number in [0, 1], got {value!r}")
+        check_number(setting, OmegaConf.select(cfg, setting), low=0, high=1)
     check_positive("agent.noise_std", cfg.agent.noise_std, allow_zero=True)
     check_positive("noise.object_std", cfg.noise.object_std, allow_zero=True)
     check_positive("eval.noise_std", cfg.eval.noise_std, allow_zero=True)
@@ -95,9 +93,8 @@ def check_config(cfg: DictConfig) -> None:
             f"got train.chunks={cfg.train.chunks} for train.episodes={cfg.train.episodes}"
         )
     check_choice("agent.normalizer_source", cfg.agent.normalizer_source, NORMALIZER_SOURCES)
-    stop = cfg.train.stop_success
-    if stop is not None and (isinstance(stop, bool) or not isinstance(stop, (int, float)) or not 0 <= stop <= 1):
-        raise ValueError(f"train.stop_success must be null or a success rate in [0, 1], got {stop!r}")
+    if cfg.train.stop_success is not None:
+        check_number("train.stop_success (a success rate, or null)", cfg.train.stop_success, low=0, high=1)
     if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
         raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {cfg.train.episodes}")
 

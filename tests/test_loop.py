@@ -206,7 +206,7 @@ def test_training_stops_once_success_holds_for_the_patience(tmp_path, monkeypatc
 def test_bad_loop_settings_name_themselves(tmp_path):
     with pytest.raises(ValueError, match="agent.normalizer_source must be one of 'sampled', 'collected', got 'batch'"):
         trainer(tmp_path, "agent.normalizer_source=batch")
-    with pytest.raises(ValueError, match=r"train.stop_success must be null or a success rate in \[0, 1\], got 2"):
+    with pytest.raises(ValueError, match=r"train.stop_success \(a success rate, or null\) must be a number in \[0, 1\], got 2"):
         trainer(tmp_path, "train.stop_success=2")
     with pytest.raises(ValueError, match="curriculum.scale must be one of 'raw', 'standardized', got 'z'"):
         trainer(tmp_path, "curriculum.scale=z")

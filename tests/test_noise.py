@@ -50,7 +50,7 @@ def test_noisy_env_keeps_reward_and_success_of_the_true_state():
 
 
 def test_noise_rejects_bad_settings():
-    with pytest.raises(ValueError, match="noise std must be a finite number of metres >= 0"):
+    with pytest.raises(ValueError, match=r"noise std \(metres\) must be a number >= 0"):
         ObservationNoise(-0.1, [slice(3, 6)])
     with pytest.raises(ValueError, match="position slice of length 3"):
         ObservationNoise(0.01, [slice(3, 5)])

@@ -15,6 +15,7 @@ from torchrl.data.replay_buffers.storages import Storage
 from gchgg.graph import EuclideanMetric
 from gchgg.samplers._storage import check_sampleable, dump_state, generator, load_state, read_field
 from gchgg.samplers.tradeoff import ExponentialTradeoff, Tradeoff, as_tradeoff
+from gchgg.validation import check_number
 
 __all__ = ["CherSampler"]
 
@@ -88,8 +89,7 @@ class CherSampler(Sampler):
         if not callable(getattr(metric, "distance", None)):
             raise TypeError(f"metric must have a distance(a, b) method, got {metric!r}")
         for name, value in (("pool_size", pool_size), ("neighbours", neighbours), ("subset_size", subset_size)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+            check_number(name, value, integer=True, low=1)
         self.metric = metric
         self.pool_size = pool_size
         self.tradeoff = as_tradeoff(ExponentialTradeoff(1.0, 0.005) if tradeoff is None else tradeoff)

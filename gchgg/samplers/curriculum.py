@@ -17,6 +17,7 @@ from torchrl.data.replay_buffers.storages import Storage
 from gchgg.samplers._storage import check_sampleable, dump_state, generator, load_state, read_field
 from gchgg.samplers.energy import EnergySampler
 from gchgg.samplers.tradeoff import Tradeoff, as_tradeoff
+from gchgg.validation import check_choice, check_number
 
 __all__ = ["SCALES", "GraphCurriculumSampler", "NearestNeighbours", "curriculum_objective", "nearest_neighbour_distances"]
 
@@ -194,22 +195,13 @@ class GraphCurriculumSampler(Sampler):
         for name, m in (("metric", metric), ("diversity_metric", diversity_metric)):
             if m is not None and not callable(getattr(m, "distance", None)):
                 raise TypeError(f"{name} must have a distance(a, b) method (GoalGraph, EuclideanMetric), got {m!r}")
-        if isinstance(num_candidates, bool) or not isinstance(num_candidates, int) or num_candidates < 1:
-            raise ValueError(f"num_candidates must be an integer >= 1, got {num_candidates!r}")
-        if neighbours is not None and (
-            isinstance(neighbours, bool) or not isinstance(neighbours, int) or neighbours < 1
-        ):
-            raise ValueError(f"neighbours must be an integer >= 1 or None (all pairs), got {neighbours!r}")
-        if unreachable_distance is not None and not (
-            isinstance(unreachable_distance, (int, float))
-            and math.isfinite(unreachable_distance)
-            and unreachable_distance >= 0
-        ):
-            raise ValueError(f"unreachable_distance must be a finite number >= 0 or None, got {unreachable_distance!r}")
-        if scale not in SCALES:
-            raise ValueError(f"scale must be one of {SCALES}, got {scale!r}")
-        if isinstance(draw_ahead, bool) or not isinstance(draw_ahead, int) or draw_ahead < 1:
-            raise ValueError(f"draw_ahead must be an integer >= 1 (samples scored together), got {draw_ahead!r}")
+        check_number("num_candidates", num_candidates, integer=True, low=1)
+        if neighbours is not None:
+            check_number("neighbours (or None: all pairs)", neighbours, integer=True, low=1)
+        if unreachable_distance is not None:
+            check_number("unreachable_distance (or None)", unreachable_distance, low=0)
+        check_choice("scale", scale, SCALES)
+        check_number("draw_ahead (samples scored together)", draw_ahead, integer=True, low=1)
         self.metric = metric
         self.diversity_metric = metric if diversity_metric is None else diversity_metric
         self.num_candidates = num_candidates
@@ -445,8 +437,8 @@ def curriculum_objective(
     if scale == "standardized":
         diversity = diversity / _spread(diversity)
         proximity = proximity / _spread(proximity)
-    elif scale != "raw":
-        raise ValueError(f"scale must be one of {SCALES}, got {scale!r}")
+    else:
+        check_choice("scale", scale, SCALES)
     return diversity, tradeoff * proximity
 
 
@@ -510,8 +502,7 @@ class NearestNeighbours:
     """
 
     def __init__(self, metric, neighbours: int | None = 3, block: int = 32) -> None:
-        if isinstance(block, bool) or not isinstance(block, int) or block < 2:
-            raise ValueError(f"block must be an integer >= 2, got {block!r}")
+        check_number("block", block, integer=True, low=2)
         self.metric = metric
         self.neighbours = neighbours
         self.block = block

@@ -13,6 +13,7 @@ from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
 from gchgg.samplers._storage import check_sampleable, dump_state, generator, load_state, read_field
+from gchgg.validation import check_number
 
 __all__ = ["EnergySampler"]
 
@@ -90,8 +91,7 @@ class EnergySampler(Sampler):
     """
 
     def __init__(self, energy_key: NestedKey = "energy", epsilon: float = 0.0) -> None:
-        if not (isinstance(epsilon, (int, float)) and math.isfinite(epsilon) and epsilon >= 0):
-            raise ValueError(f"epsilon must be a finite number >= 0, got {epsilon!r}")
+        check_number("epsilon", epsilon, low=0)
         self.energy_key = energy_key
         self.epsilon = float(epsilon)
         self._cache: tuple[_Runs | None, int] | None = None  # the runs and len(storage) they were built for

@@ -12,15 +12,13 @@ from typing import Any, Protocol, runtime_checkable
 
 import torch
 
+from gchgg.validation import check_number
+
 __all__ = ["AdaptiveTradeoff", "ExponentialTradeoff", "FixedTradeoff", "Tradeoff", "as_tradeoff"]
 
 
 def _number(name: str, value: Any, *, low: float | None = None, strict: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    if low is not None and (value <= low if strict else value < low):
-        raise ValueError(f"{name} must be {'>' if strict else '>='} {low}, got {value!r}")
-    return float(value)
+    return float(check_number(name, value, low=low, low_open=strict))
 
 
 @runtime_checkable

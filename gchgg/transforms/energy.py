@@ -13,11 +13,12 @@ EBP sampler (:class:`gchgg.samplers.EnergySampler`) never draws them while any e
 
 from __future__ import annotations
 
-import math
 
 import torch
 from tensordict import NestedKey, TensorDictBase
 from torchrl.envs.transforms import Transform
+
+from gchgg.validation import check_number
 
 __all__ = ["EpisodeEnergy", "trajectory_energy"]
 
@@ -57,8 +58,7 @@ def trajectory_energy(
     if positions.ndim < 2 or positions.shape[-1] != 3:
         raise ValueError(f"positions must have shape [..., L, 3], got {tuple(positions.shape)}")
     for name, value in (("dt", dt), ("clip", clip)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        check_number(name, value, low=0, low_open=True)
     positions = positions.to(torch.float64)
     height = positions[..., 1:, 2] - positions[..., :1, 2]
     velocity = positions.diff(dim=-2) / dt

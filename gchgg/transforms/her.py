@@ -31,6 +31,8 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from torchrl.envs.transforms import Transform
 
+from gchgg.validation import check_number
+
 __all__ = ["DEFAULT_DROP_KEYS", "GoalToNext", "HerStrategy", "HindsightRelabel"]
 
 DEFAULT_DROP_KEYS: tuple[NestedKey, ...] = (
@@ -137,8 +139,7 @@ class HindsightRelabel(Transform):
         super().__init__(in_keys=[], out_keys=[])
         if not callable(reward_fn):
             raise TypeError(f"reward_fn must be a callable (achieved_goal, goal) -> reward, got {reward_fn!r}")
-        if isinstance(k, bool) or not isinstance(k, int) or k < 0:
-            raise ValueError(f"k (relabelled copies per step) must be an integer >= 0, got {k!r}")
+        check_number("k (relabelled copies per step)", k, integer=True, low=0)
         try:
             self.strategy = HerStrategy(strategy)
         except ValueError:

@@ -15,12 +15,13 @@ transform for a KUKA task.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import torch
 from tensordict import NestedKey, TensorDictBase
 from torchrl.envs.transforms import Transform
+
+from gchgg.validation import check_number
 
 __all__ = ["ObservationNoise"]
 
@@ -67,8 +68,7 @@ class ObservationNoise(Transform):
         achieved_goal_key: NestedKey | None = "achieved_goal",
         true_achieved_goal_key: NestedKey | None = "true_achieved_goal",
     ) -> None:
-        if isinstance(std, bool) or not isinstance(std, (int, float)) or not math.isfinite(std) or std < 0:
-            raise ValueError(f"noise std must be a finite number of metres >= 0, got {std!r}")
+        check_number("noise std (metres)", std, low=0)
         slices = tuple(slices)
         for s in slices:
             if not isinstance(s, slice) or s.step not in (None, 1) or s.start is None or s.stop - s.start != 3:
