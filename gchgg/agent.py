@@ -27,6 +27,7 @@ import copy
 import math
 import numbers
 from collections.abc import Sequence
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import torch
@@ -40,6 +41,7 @@ from gchgg.validation import check_number
 
 __all__ = [
     "DDPGAgent",
+    "DDPGConfig",
     "GoalConditionedActor",
     "GoalConditionedCritic",
     "HindsightDDPGLoss",
@@ -466,6 +468,47 @@ class HindsightDDPGLoss(DDPGLoss):
         return self._actor_loss(tensordict.get(self.observation_key), tensordict.get(self.goal_key)), {}
 
 
+@dataclass(frozen=True)
+class DDPGConfig:
+    """The learner's hyperparameters, each declared once, here (defaults: the original code's, REFERENCE.md).
+
+    ``conf/config.yaml``'s ``agent`` section sets them by name (``agent.actor_lr=5e-4``); a
+    :class:`DDPGAgent` logs them in ``hparams`` and refuses a state saved with others.
+
+    >>> DDPGConfig(actor_lr=0)
+    Traceback (most recent call last):
+    ...
+    ValueError: actor_lr must be a number > 0, got 0
+    """
+
+    hidden: tuple[int, ...] = (256, 256, 256)  # hidden-layer widths of the actor and of the critic
+    actor_lr: float = 1e-3  # Adam learning rate of the actor
+    critic_lr: float = 1e-3  # Adam learning rate of the critic
+    gamma: float = 0.98  # discount factor, in (0, 1)
+    polyak: float = 0.95  # target networks move as θ' ← polyak·θ' + (1 − polyak)·θ
+    target_update_every: int = 20  # the target networks move after every n-th update
+    action_l2: float = 1.0  # weight of mean(π²) in the actor loss
+    clip_return: bool = True  # clip the bootstrapped Q' to [−1/(1−γ), 0] in the critic target
+    random_eps: float = 0.3  # probability of a uniform random action when exploring (eq. 22)
+    noise_std: float = 0.2  # std of the Gaussian action noise when exploring (eq. 22)
+    norm_std_min: float = 1e-2  # std floor of the observation / goal normalisers
+    norm_clip: float = 5.0  # normalised observations and goals are clipped to ±norm_clip
+
+    def __post_init__(self) -> None:
+        hidden = tuple(self.hidden)
+        if not hidden or not all(isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1 for h in hidden):
+            raise ValueError(f"hidden must be a non-empty sequence of positive layer widths, got {self.hidden!r}")
+        object.__setattr__(self, "hidden", hidden)
+        for name in ("actor_lr", "critic_lr", "norm_std_min", "norm_clip"):
+            check_number(name, getattr(self, name), low=0, low_open=True)
+        check_number("gamma", self.gamma, low=0, high=1, low_open=True, high_open=True)
+        check_number("polyak", self.polyak, low=0, high=1)
+        check_number("target_update_every", self.target_update_every, integer=True, low=1)
+        check_number("action_l2", self.action_l2, low=0)
+        check_number("random_eps", self.random_eps, low=0, high=1)
+        check_number("noise_std", self.noise_std, low=0)
+
+
 class DDPGAgent:
     """Goal-conditioned DDPG with the reference hyperparameters: act, learn, value, checkpoint.
 
@@ -473,19 +516,9 @@ class DDPGAgent:
         obs_dim: observation size.
         goal_dim: goal size (3 for every task here).
         action_dim: action size.
-        hidden: hidden-layer widths of the actor and of the critic.
-        actor_lr: Adam learning rate of the actor.
-        critic_lr: Adam learning rate of the critic.
-        gamma: discount factor, in (0, 1).
-        polyak: target networks move as ``θ' ← polyak·θ' + (1 − polyak)·θ``, in [0, 1].
-        target_update_every: the target networks move after every ``target_update_every``-th update.
-        action_l2: weight of ``mean(π²)`` in the actor loss.
-        clip_return: clip the bootstrapped ``Q'`` to ``[−1/(1−γ), 0]`` in the critic target.
-        random_eps: probability of a uniform random action when exploring.
-        noise_std: standard deviation of the Gaussian action noise when exploring.
-        norm_std_min: std floor of the observation / goal normalisers.
-        norm_clip: normalised observations and goals are clipped to ``±norm_clip``.
+        config: the hyperparameters (:class:`DDPGConfig`; default: the original code's).
         generator: draws the initial weights (``None``: torch's global generator).
+        **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
     The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
     ``action [B, A]``, ``("next", "observation")`` and ``("next", "reward") [B, 1]``; other keys are
@@ -514,51 +547,37 @@ class DDPGAgent:
         obs_dim: int,
         goal_dim: int,
         action_dim: int,
+        config: DDPGConfig | None = None,
         *,
-        hidden: Sequence[int] = (256, 256, 256),
-        actor_lr: float = 1e-3,
-        critic_lr: float = 1e-3,
-        gamma: float = 0.98,
-        polyak: float = 0.95,
-        target_update_every: int = 20,
-        action_l2: float = 1.0,
-        clip_return: bool = True,
-        random_eps: float = 0.3,
-        noise_std: float = 0.2,
-        norm_std_min: float = 1e-2,
-        norm_clip: float = 5.0,
         generator: torch.Generator | None = None,
+        **overrides: Any,
     ) -> None:
-        check_number("actor_lr", actor_lr, low=0, low_open=True)
-        check_number("critic_lr", critic_lr, low=0, low_open=True)
-        check_number("polyak", polyak, low=0, high=1)
-        check_number("target_update_every", target_update_every, integer=True, low=1)
-        check_number("random_eps", random_eps, low=0, high=1)
-        check_number("noise_std", noise_std, low=0)
+        unknown = set(overrides) - {f.name for f in fields(DDPGConfig)}
+        if unknown:
+            raise TypeError(f"unknown DDPGAgent settings {sorted(unknown)}; the settings are DDPGConfig's fields")
+        config = replace(config or DDPGConfig(), **overrides)
+        self.config = config
         self.obs_dim, self.goal_dim, self.action_dim = int(obs_dim), int(goal_dim), int(action_dim)
-        self.gamma = float(gamma)
-        self.polyak = float(polyak)
-        self.target_update_every = int(target_update_every)
-        self.random_eps = float(random_eps)
-        self.noise_std = float(noise_std)
-        self.hparams = dict(
-            obs_dim=obs_dim, goal_dim=goal_dim, action_dim=action_dim, hidden=tuple(hidden),
-            actor_lr=actor_lr, critic_lr=critic_lr, gamma=gamma, polyak=polyak,
-            target_update_every=target_update_every, action_l2=action_l2, clip_return=clip_return,
-            random_eps=random_eps, noise_std=noise_std, norm_std_min=norm_std_min, norm_clip=norm_clip,
-        )  # fmt: skip
+        self.gamma = float(config.gamma)
+        self.polyak = float(config.polyak)
+        self.target_update_every = int(config.target_update_every)
+        self.random_eps = float(config.random_eps)
+        self.noise_std = float(config.noise_std)
+        self.hparams = dict(obs_dim=obs_dim, goal_dim=goal_dim, action_dim=action_dim, **asdict(config))
 
         actor, critic = make_ddpg_networks(
-            obs_dim, goal_dim, action_dim, hidden,
-            norm_std_min=norm_std_min, norm_clip=norm_clip, generator=generator,
+            obs_dim, goal_dim, action_dim, config.hidden,
+            norm_std_min=config.norm_std_min, norm_clip=config.norm_clip, generator=generator,
         )  # fmt: skip
-        self.loss_module = HindsightDDPGLoss(actor, critic, gamma=gamma, action_l2=action_l2, clip_return=clip_return)
-        self.target_updater = SoftUpdate(self.loss_module, eps=polyak)
+        self.loss_module = HindsightDDPGLoss(
+            actor, critic, gamma=config.gamma, action_l2=config.action_l2, clip_return=config.clip_return
+        )
+        self.target_updater = SoftUpdate(self.loss_module, eps=config.polyak)
         # fused Adam: one kernel per step instead of several per parameter
         actor_params = [p for p in self.loss_module.actor_network_params.values(True, True) if p.requires_grad]
         critic_params = [p for p in self.loss_module.value_network_params.values(True, True) if p.requires_grad]
-        self.actor_optimizer = torch.optim.Adam(actor_params, lr=actor_lr, fused=True)
-        self.critic_optimizer = torch.optim.Adam(critic_params, lr=critic_lr, fused=True)
+        self.actor_optimizer = torch.optim.Adam(actor_params, lr=config.actor_lr, fused=True)
+        self.critic_optimizer = torch.optim.Adam(critic_params, lr=config.critic_lr, fused=True)
         self.observation_normalizer: RunningNormalizer = self.loss_module.actor.observation_normalizer
         self.goal_normalizer: RunningNormalizer = self.loss_module.actor.goal_normalizer
         self.num_updates = 0

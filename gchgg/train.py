@@ -44,7 +44,7 @@ from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
-from gchgg.agent import DDPGAgent  # noqa: E402
+from gchgg.agent import DDPGAgent, DDPGConfig  # noqa: E402
 from gchgg.builders import (  # noqa: E402
     check_positive,
     make_observation_noise,
@@ -79,14 +79,10 @@ def check_config(cfg: DictConfig) -> None:
     check_positive("checkpoint.every", cfg.checkpoint.every, integer=True)
     for setting in ("train.updates", "train.warmup_steps", "her.k", "threads"):
         check_positive(setting, OmegaConf.select(cfg, setting), integer=True, allow_zero=True)
-    for setting in ("agent.actor_lr", "agent.critic_lr", "env.threshold", "agent.target_update_every"):
-        check_positive(setting, OmegaConf.select(cfg, setting))
-    for setting in ("agent.gamma", "agent.polyak", "agent.random_eps"):
-        check_number(setting, OmegaConf.select(cfg, setting), low=0, high=1)
-    check_positive("agent.noise_std", cfg.agent.noise_std, allow_zero=True)
+    check_positive("env.threshold", cfg.env.threshold)
     check_positive("noise.object_std", cfg.noise.object_std, allow_zero=True)
     check_positive("eval.noise_std", cfg.eval.noise_std, allow_zero=True)
-    check_positive("agent.action_l2", cfg.agent.action_l2, allow_zero=True)
+    agent_config(cfg)
     if cfg.train.episodes % cfg.train.chunks:
         raise ValueError(
             f"train.chunks must divide train.episodes (each chunk collects the same number of episodes), "
@@ -97,6 +93,19 @@ def check_config(cfg: DictConfig) -> None:
         check_number("train.stop_success (a success rate, or null)", cfg.train.stop_success, low=0, high=1)
     if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
         raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {cfg.train.episodes}")
+
+
+def agent_config(cfg: DictConfig) -> DDPGConfig:
+    """The learner's hyperparameters from the ``agent`` section (all but ``normalizer_source``, which the
+    loop reads); a bad one is a ``ValueError`` naming ``agent.<setting>``."""
+    settings = {k: v for k, v in OmegaConf.to_container(cfg.agent).items() if k != "normalizer_source"}
+    try:
+        return DDPGConfig(**settings)
+    except ValueError as error:
+        raise ValueError(f"agent.{error}") from None
+    except TypeError:
+        unknown = sorted(set(settings) - set(DDPGConfig.__dataclass_fields__))
+        raise ValueError(f"unknown agent settings {unknown}; the settings are DDPGConfig's fields") from None
 
 
 class Trainer:
@@ -183,15 +192,7 @@ class Trainer:
             self.env.obs_dim,
             3,
             self.env.action_dim,
-            hidden=tuple(cfg.agent.hidden),
-            actor_lr=cfg.agent.actor_lr,
-            critic_lr=cfg.agent.critic_lr,
-            gamma=cfg.agent.gamma,
-            polyak=cfg.agent.polyak,
-            target_update_every=cfg.agent.target_update_every,
-            action_l2=cfg.agent.action_l2,
-            random_eps=cfg.agent.random_eps,
-            noise_std=cfg.agent.noise_std,
+            agent_config(cfg),
             generator=torch.Generator().manual_seed(int(seeds[4])),
         )
         self.goal_generator = None

@@ -155,7 +155,7 @@ def test_corrupt_checkpoint_is_an_error_that_says_so(tmp_path):
         ("eval.episodes=0", "eval.episodes must be an integer > 0"),
         ("train.iterations=0", "train.iterations must be an integer > 0"),
         ("agent.actor_lr=0", "agent.actor_lr must be a number > 0"),
-        ("agent.gamma=1.5", r"agent.gamma must be a number in \[0, 1\], got 1.5"),
+        ("agent.gamma=1.5", r"agent.gamma must be a number in \(0, 1\), got 1.5"),
         ("graph.n=[31,3,11]", "spacing"),
         ("graph.margin=-0.1", "margin"),
     ],
