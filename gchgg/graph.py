@@ -85,10 +85,35 @@ _AXES = "xyz"
 
 
 @runtime_checkable
+class Lattice(Protocol):
+    """The vertex view of a graph metric: what consumers that score many goals read instead of
+    calling ``distance`` pair by pair (the curriculum's nearest-neighbour search, HGG's costs)."""
+
+    field: tuple[tuple[float, float, float], tuple[float, float, float]]  # (centre, half-sizes), metres
+
+    @property
+    def vertices(self) -> torch.Tensor: ...  # float32 [V, 3] vertex positions
+
+    @property
+    def resolution(self) -> float: ...  # metres: distances are rounded to this (0: exact)
+
+    def vertex_index(self, goals: torch.Tensor) -> torch.Tensor: ...  # eq. 14; -1 off the graph
+
+    def distance_between_vertices(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor: ...  # checked
+
+    def pair_distance(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor: ...  # unchecked, for hot loops
+
+
+@runtime_checkable
 class Metric(Protocol):
-    """Anything with ``distance(a, b)``: goals ``[..., 3]``, broadcasting, to float32 ``[...]``."""
+    """A goal metric: ``distance(a, b)`` on goals ``[..., 3]``, broadcasting, to float32 ``[...]``, and
+    its ``lattice`` (a :class:`Lattice` for a graph metric, ``None`` for one that works on goals
+    directly). Consumers read ``lattice`` rather than asking which metric they hold."""
 
     def distance(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor: ...
+
+    @property
+    def lattice(self) -> Lattice | None: ...
 
 
 class EuclideanMetric:
@@ -99,6 +124,8 @@ class EuclideanMetric:
         >>> EuclideanMetric().distance(torch.zeros(2, 3), torch.tensor([3.0, 4.0, 0.0]))
         tensor([5., 5.])
     """
+
+    lattice = None  # no vertices: distances are computed on the goals themselves
 
     def distance(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         """Euclidean distance between goals.
@@ -247,7 +274,7 @@ class GoalGraph:
         self._row_offset = rows * slots - rows * (rows + 1) // 2
         self._adjacency: csr_matrix | None = None
 
-        self._vertex_lookup: tuple[torch.Tensor, torch.Tensor] | None = None  # see _pair_distance_unchecked
+        self._vertex_lookup: tuple[torch.Tensor, torch.Tensor] | None = None  # see pair_distance
         self.cache_path: Path | None = None
         self.loaded_from_cache = False
         if cache_dir is not None:
@@ -322,7 +349,12 @@ class GoalGraph:
                 )
         return self._slot_distance(i.long() + 1, j.long() + 1)
 
-    def _pair_distance_unchecked(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
+    @property
+    def lattice(self) -> GoalGraph:
+        """The graph itself: it is its own :class:`Lattice` (vertices, eq. 14, table lookups)."""
+        return self
+
+    def pair_distance(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
         """:meth:`distance_between_vertices` without its checks, for hot loops (samplers).
 
         Args:

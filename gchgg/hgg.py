@@ -54,6 +54,7 @@ import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
 
+from gchgg.graph import Metric
 from gchgg.validation import check_choice, check_number
 
 __all__ = ["GoalGeneration", "HGGGoalGenerator", "TrajectoryPool", "estimate_max_distance"]
@@ -316,8 +317,10 @@ class HGGGoalGenerator:
         value_batch_size: int = 4096,
         on_stop: Callable[[], None] | None = None,
     ) -> None:
-        if not callable(getattr(metric, "distance", None)):
-            raise TypeError(f"metric must have a distance(a, b) method (GoalGraph, EuclideanMetric), got {metric!r}")
+        if not isinstance(metric, Metric):
+            raise TypeError(
+                f"metric must be a gchgg.graph.Metric (distance(a, b) and lattice: GoalGraph, EuclideanMetric), got {metric!r}"
+            )
         if value_fn is not None and not callable(value_fn):
             raise TypeError(f"value_fn must be callable value(observation, goal) -> [B], got {value_fn!r}")
         check_number("max_dis", max_dis, low=0, low_open=True)
@@ -344,9 +347,7 @@ class HGGGoalGenerator:
         self.value_batch_size = int(value_batch_size)
         self.stopped = False
         self.on_stop = on_stop
-        self._by_vertex = callable(getattr(metric, "vertex_index", None)) and callable(
-            getattr(metric, "distance_between_vertices", None)
-        )
+        self._graph = metric.lattice  # a graph's vertex view (pool points deduplicated to vertices), or None
 
     # ------------------------------------------------------------------ public API
 
@@ -479,12 +480,13 @@ class HGGGoalGenerator:
 
     def _distances(self, targets: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
         """Metric distance from every target to every pool point, inf replaced: float32 [K, P, T1]."""
-        if self._by_vertex:
+        graph = self._graph
+        if graph is not None:
             # Many pool points share a vertex: read the table once per (target vertex, pool vertex).
-            target_vertex = self.metric.vertex_index(targets)  # [K]
-            vertex, inverse = torch.unique(self.metric.vertex_index(points.reshape(-1, 3)), return_inverse=True)
+            target_vertex = graph.vertex_index(targets)  # [K]
+            vertex, inverse = torch.unique(graph.vertex_index(points.reshape(-1, 3)), return_inverse=True)
             target_unique, target_inverse = torch.unique(target_vertex, return_inverse=True)
-            table = self.metric.distance_between_vertices(target_unique[:, None], vertex[None, :])  # [K', U]
+            table = graph.distance_between_vertices(target_unique[:, None], vertex[None, :])  # [K', U]
             distance = table[target_inverse][:, inverse]  # [K, P·T1]
         else:
             distance = self.metric.distance(targets[:, None, :], points.reshape(1, -1, 3))

@@ -253,9 +253,9 @@ def test_vertex_index_and_distance_between_vertices(graph):
         graph.distance_between_vertices(torch.tensor([-2]), torch.tensor([0]))
     # The unchecked lookup of the samplers' hot path gives the same values, -1 included.
     assert (index == -1).any() and (index >= 0).any()
-    assert torch.equal(graph._pair_distance_unchecked(index[:, None], index[None, :]), by_vertex)
+    assert torch.equal(graph.pair_distance(index[:, None], index[None, :]), by_vertex)
     last = torch.tensor([graph.num_vertices - 1, -1, 0])
-    assert torch.equal(graph._pair_distance_unchecked(last[:, None], last[None, :]),
+    assert torch.equal(graph.pair_distance(last[:, None], last[None, :]),
                        graph.distance_between_vertices(last[:, None], last[None, :]))
 
 

@@ -12,7 +12,7 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
-from gchgg.graph import EuclideanMetric
+from gchgg.graph import EuclideanMetric, Metric
 from gchgg.samplers._storage import check_sampleable, dump_state, generator, load_state, read_field
 from gchgg.samplers.tradeoff import ExponentialTradeoff, Tradeoff, as_tradeoff
 from gchgg.validation import check_number
@@ -86,8 +86,8 @@ class CherSampler(Sampler):
         subset_size: int = 3,
     ) -> None:
         metric = EuclideanMetric() if metric is None else metric
-        if not callable(getattr(metric, "distance", None)):
-            raise TypeError(f"metric must have a distance(a, b) method, got {metric!r}")
+        if not isinstance(metric, Metric):
+            raise TypeError(f"metric must be a gchgg.graph.Metric (distance(a, b) and lattice), got {metric!r}")
         for name, value in (("pool_size", pool_size), ("neighbours", neighbours), ("subset_size", subset_size)):
             check_number(name, value, integer=True, low=1)
         self.metric = metric

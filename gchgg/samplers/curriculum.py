@@ -14,6 +14,7 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
+from gchgg.graph import Metric
 from gchgg.samplers._storage import check_sampleable, dump_state, generator, load_state, read_field
 from gchgg.samplers.energy import EnergySampler
 from gchgg.samplers.tradeoff import Tradeoff, as_tradeoff
@@ -92,8 +93,8 @@ class GraphCurriculumSampler(Sampler):
     the axis to the window's edge, away; where the shortlist's best metric distance is within that
     bound the nearest neighbour is proven, and for the few goals where it is not (beside an
     obstacle, or in a sparse stretch) the metric is also read for every goal nearer in a straight
-    line than the best distance found. For a :class:`~gchgg.graph.GoalGraph` (any metric with
-    ``vertex_index``, ``vertices`` and ``distance_between_vertices``) the straight lines are
+    line than the best distance found. For a metric with a :class:`~gchgg.graph.Lattice` (a
+    :class:`~gchgg.graph.GoalGraph`: ``metric.lattice`` is not ``None``) the straight lines are
     measured between the goals' lattice vertices, which the graph distance never undercuts (up to
     its table's rounding), and each goal is snapped once. A metric shorter than the straight line
     makes the shortlist approximate; ``neighbours=None`` scores all pairs (exact for any metric).
@@ -193,8 +194,8 @@ class GraphCurriculumSampler(Sampler):
         draw_ahead: int = 8,
     ) -> None:
         for name, m in (("metric", metric), ("diversity_metric", diversity_metric)):
-            if m is not None and not callable(getattr(m, "distance", None)):
-                raise TypeError(f"{name} must have a distance(a, b) method (GoalGraph, EuclideanMetric), got {m!r}")
+            if m is not None and not isinstance(m, Metric):
+                raise TypeError(f"{name} must be a gchgg.graph.Metric (distance(a, b) and lattice: GoalGraph, EuclideanMetric), got {m!r}")
         check_number("num_candidates", num_candidates, integer=True, low=1)
         if neighbours is not None:
             check_number("neighbours (or None: all pairs)", neighbours, integer=True, low=1)
@@ -506,7 +507,8 @@ class NearestNeighbours:
         self.metric = metric
         self.neighbours = neighbours
         self.block = block
-        self._snap = all(hasattr(metric, name) for name in ("vertex_index", "vertices", "distance_between_vertices"))
+        self._graph = metric.lattice  # the graph's vertex view (snap, table lookups), or None: goals as they are
+        self._snap = self._graph is not None
         self._origin: torch.Tensor | None = None
         self._axis = 0  # the coordinate goals are sorted by: the field's longest (graph) or widest-spread one
         self._lattice: torch.Tensor | None = None  # graph vertices relative to the origin
@@ -516,7 +518,7 @@ class NearestNeighbours:
 
     @property
     def snaps(self) -> bool:
-        """Whether the metric is a graph whose goals are snapped to vertices (``vertex_index`` etc.)."""
+        """Whether the metric has a :class:`~gchgg.graph.Lattice` whose vertices goals are snapped to."""
         return self._snap
 
     def points(self, goals: torch.Tensor) -> torch.Tensor:
@@ -529,7 +531,7 @@ class NearestNeighbours:
         goals = torch.as_tensor(goals)
         if self._snap:
             self._setup_graph()
-            vertex = self.metric.vertex_index(goals)
+            vertex = self._graph.vertex_index(goals)
             position = torch.where((vertex >= 0).unsqueeze(-1), self._lattice[vertex], self._park)
             ident = vertex.float()  # exact: < 2**24 vertices
         else:
@@ -548,14 +550,9 @@ class NearestNeighbours:
     def _setup_graph(self) -> None:
         if self._lattice is not None:
             return
-        metric = self.metric
-        vertices = torch.as_tensor(metric.vertices, dtype=torch.float32)
-        field = getattr(metric, "field", None)
-        if field is not None:
-            center, half = (torch.as_tensor(v, dtype=torch.float32) for v in field)
-        else:
-            low, high = vertices.min(0).values, vertices.max(0).values
-            center, half = (low + high) / 2, (high - low) / 2
+        graph = self._graph
+        vertices = torch.as_tensor(graph.vertices, dtype=torch.float32)
+        center, half = (torch.as_tensor(v, dtype=torch.float32) for v in graph.field)
         self._origin = center
         self._axis = int(half.argmax())
         self._lattice = vertices - center
@@ -645,13 +642,12 @@ class NearestNeighbours:
 
     def _lookup(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
         """Graph distance between vertex indices (the graph's unchecked lookup where it has one)."""
-        metric = self.metric
-        return getattr(metric, "_pair_distance_unchecked", metric.distance_between_vertices)(i, j)
+        return self._graph.pair_distance(i, j)  # unchecked: the indices come from the graph
 
     def _tolerance(self) -> float:
         """Metres the straight-line bound is lowered by: float32 rounding, and for a graph half its
         table's resolution (its distances are rounded to it)."""
-        return _BOUND_TOLERANCE + (0.5 * float(getattr(self.metric, "resolution", 0.0)) if self._snap else 0.0)
+        return _BOUND_TOLERANCE + (0.5 * float(self._graph.resolution) if self._snap else 0.0)
 
     def _shortlist(self, points: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor]:
         """For points sorted along the axis ``[K, B, 6]``: each one's m nearest others in its window, as
