@@ -17,7 +17,7 @@ def test_noise_statistics_on_the_chosen_slices_only():
     layout = envs.observation_layout("push_new")
     noise = make_observation_noise(layout, True, sigma, torch.Generator().manual_seed(0))
     clean = torch.rand(n, 25)
-    td = noise._call(TensorDict({"observation": clean.clone(), "achieved_goal": clean[:, 3:6].clone()}, [n]))
+    td = noise(TensorDict({"observation": clean.clone(), "achieved_goal": clean[:, 3:6].clone()}, [n]))
     delta = td["observation"] - clean
     eps = delta[:, layout["object_position"]]
     assert eps.mean(0).abs().max() < 4 * sigma / n**0.5  # mean 0 within 4 standard errors

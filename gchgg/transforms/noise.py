@@ -50,7 +50,7 @@ class ObservationNoise(Transform):
         >>> from tensordict import TensorDict
         >>> noise = ObservationNoise(0.01, [slice(3, 6), slice(6, 9)], generator=torch.Generator().manual_seed(0))
         >>> obs = torch.arange(12.0).expand(4, 12)
-        >>> out = noise._call(TensorDict({"observation": obs.clone(), "achieved_goal": obs[:, 3:6].clone()}, [4]))
+        >>> out = noise(TensorDict({"observation": obs.clone(), "achieved_goal": obs[:, 3:6].clone()}, [4]))
         >>> eps = out["observation"][:, 3:6] - obs[:, 3:6]
         >>> torch.allclose(out["observation"][:, 6:9] - obs[:, 6:9], eps, atol=1e-6), torch.equal(out["observation"][:, :3], obs[:, :3])
         (True, True)
@@ -99,6 +99,10 @@ class ObservationNoise(Transform):
                 next_tensordict.set(self.true_achieved_goal_key, achieved.clone())
             next_tensordict.set(self.achieved_goal_key, achieved + eps.to(achieved.dtype))
         return next_tensordict
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Noise a TensorDict directly (outside an env), in place, e.g. ``noise(rollout)``."""
+        return self._call(tensordict)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         return self._call(tensordict_reset)
