@@ -60,13 +60,13 @@ def memory() -> None:
     rows = 10_000 * (K_HER + 1) * steps
     storage = LazyTensorStorage(rows)
     storage.set(torch.arange(len(transitions)), transitions)  # allocates all rows (untouched pages)
-    reserved = storage._storage.bytes()
+    reserved = per_transition * rows  # LazyTensorStorage allocates every row of its capacity
     print(f"memory: one stored transition = {per_transition:.0f} bytes "
           f"({', '.join(sorted(str(k) for k in transitions.keys(True, True)))})")
     # The curriculum sampler's per-row cache is sized to the storage's capacity at the first sample.
     sampler = GraphCurriculumSampler(EuclideanMetric(), 8)
     sampler.sample(storage, BATCH)
-    cache = sampler._rows.numel() * sampler._rows.element_size()
+    cache = sampler.cache_bytes
     print(f"memory: 10,000 push_new episodes x {K_HER + 1} x T={steps} = {rows:,} transitions "
           f"reserve {reserved / 1e9:.2f} GB in LazyTensorStorage + {cache / 1e9:.2f} GB curriculum cache "
           f"({cache / rows:.0f} bytes/row) = {(reserved + cache) / 1e9:.2f} GB (target <= 2 GB)")
@@ -179,7 +179,7 @@ def speed(episodes: int, rounds: int) -> None:
 
 
 def shortlist_check(storage, graph, generator: torch.Generator, draws: int = 20) -> None:
-    goals = storage._storage.get("desired_goal")[: len(storage)]
+    goals = storage.get(torch.arange(len(storage)))["desired_goal"]
     rescored = total = mismatched = 0
     for _ in range(draws):
         batch = goals[torch.randint(len(goals), (8 * BATCH,), generator=generator)].view(8, BATCH, 3)

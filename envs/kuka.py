@@ -137,7 +137,7 @@ def _start_joints(base: np.ndarray, grip: np.ndarray) -> np.ndarray:
     return np.array([q1, q2, 0.0, q4, 0.0, q6, q1])
 
 
-def _workspace(geom: TaskGeometry) -> tuple[np.ndarray, np.ndarray]:
+def workspace(geom: TaskGeometry) -> tuple[np.ndarray, np.ndarray]:
     """Low and high corners of the box the grip site is kept in: the goal field plus some slack."""
     low = np.array(geom.field.low) - _WORKSPACE_SLACK
     high = np.array(geom.field.high) + _WORKSPACE_SLACK
@@ -176,7 +176,7 @@ class KukaTask(base.Task):
         self.action_dim = geometry.action_dim
         self.layout = WITH_OBJECT if self.has_object else NO_OBJECT  # named slices of the observation
         self.obs_dim = observation_size(self.layout)
-        self._low, self._high = _workspace(geometry)
+        self._low, self._high = workspace(geometry)
 
     # -- episode set-up -------------------------------------------------------------------------
 

@@ -436,7 +436,8 @@ class HindsightDDPGLoss(DDPGLoss):
             loss_actor = loss_actor + self.action_l2 * policy_action.square().mean()
         return loss_actor
 
-    def _inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, ...]:
+    def inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, ...]:
+        """The tensors :meth:`losses` takes, read from a batch: observation, goal, action, next observation, reward."""
         return (
             tensordict.get(self.observation_key),
             tensordict.get(self.goal_key),
@@ -447,7 +448,7 @@ class HindsightDDPGLoss(DDPGLoss):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         """Losses of a batch: ``loss_actor``, ``loss_value``, and the means of ``pred_value`` and ``target_value``."""
-        loss_actor, loss_value, pred_value, target_value = self.losses(*self._inputs(tensordict))
+        loss_actor, loss_value, pred_value, target_value = self.losses(*self.inputs(tensordict))
         return TensorDict(
             {
                 "loss_actor": loss_actor,
@@ -460,7 +461,7 @@ class HindsightDDPGLoss(DDPGLoss):
 
     def loss_value(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """Critic loss of a batch and ``{"pred_value", "target_value"}`` (``[B]`` each)."""
-        loss, pred_value, target_value = self._critic_loss(*self._inputs(tensordict))
+        loss, pred_value, target_value = self._critic_loss(*self.inputs(tensordict))
         return loss, {"pred_value": pred_value.squeeze(-1), "target_value": target_value.squeeze(-1)}
 
     def loss_actor(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
@@ -716,7 +717,7 @@ class DDPGAgent:
             FloatingPointError: a loss is NaN or inf; no parameter is changed.
         """
         loss = self.loss_module
-        loss_actor, loss_value, pred_value, target_value = loss.losses(*loss._inputs(batch))
+        loss_actor, loss_value, pred_value, target_value = loss.losses(*loss.inputs(batch))
         values = torch.stack([loss_actor.detach(), loss_value.detach(), pred_value.mean(), target_value.mean()])
         values = values.tolist()
         if not all(math.isfinite(v) for v in values[:2]):

@@ -389,7 +389,7 @@ def test_loss_module_is_a_standalone_torchrl_loss():
     SoftUpdate(loss, eps=0.95)
     batch = make_batch()
     out = loss(batch)
-    loss_actor, loss_value, _, target = loss.losses(*loss._inputs(batch))
+    loss_actor, loss_value, _, target = loss.losses(*loss.inputs(batch))
     torch.testing.assert_close(out["loss_actor"], loss_actor)
     torch.testing.assert_close(out["loss_value"], loss_value)
     assert loss.return_range == pytest.approx((-10.0, 0.0))

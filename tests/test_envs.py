@@ -267,7 +267,7 @@ def test_long_random_rollouts_have_no_nan_and_no_mujoco_warning(name):
         assert not physics.data.warning.number.any(), physics.data.warning.number
     # Nothing is flung away: the grip stays in its workspace, the cube on the table or the floor nearby.
     grip = rollout["next", "observation"][..., :3]
-    low, high = kuka._workspace(env.geometry)
+    low, high = kuka.workspace(env.geometry)
     assert ((grip > torch.tensor(low) - 0.03) & (grip < torch.tensor(high) + 0.03)).all()
     if env.has_object:
         assert (rollout["next", "achieved_goal"].abs() < 2.0).all()
@@ -295,7 +295,7 @@ def test_start_pose_puts_the_grip_at_its_start_pointing_down(name):
     env.reset()
     physics = env.physics
     np.testing.assert_allclose(physics.grip_position(), envs.geometry(name).gripper_start, atol=1e-6)
-    hand_z = physics.data.xmat[physics._hand].reshape(3, 3)[:, 2]
+    hand_z = physics.named.data.xmat["hand"].reshape(3, 3)[:, 2]
     np.testing.assert_allclose(hand_z, [0, 0, -1], atol=1e-6)
     limits = physics.model.jnt_range[:7]
     qpos = physics.data.qpos[:7]

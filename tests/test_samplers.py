@@ -236,7 +236,7 @@ def test_cher_prefers_goals_near_targets_with_large_tradeoff():
 def test_cher_similarity_graph_excludes_self_even_with_duplicates():
     sampler = CherSampler(neighbours=1)
     goals = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
-    neighbour, similarity = sampler._similarity_graph(goals)
+    neighbour, similarity = sampler.similarity_graph(goals)
     assert neighbour[:, 0].tolist()[2:] == [1, 2] or neighbour[:, 0].tolist()[2:] == [0, 2]
     assert neighbour[0, 0] == 1 and neighbour[1, 0] == 0  # the duplicate, not itself
     d = torch.tensor([0.0, 0.0, 1.0, 2.0])

@@ -110,7 +110,7 @@ class CherSampler(Sampler):
         goals = read_field(storage, self.goal_key, pool, self).reshape(self.pool_size, -1)
         targets = read_field(storage, self.target_key, pool, self).reshape(self.pool_size, -1)
 
-        neighbour, similarity = self._similarity_graph(goals)  # [P, k] each
+        neighbour, similarity = self.similarity_graph(goals)  # [P, k] each
         distance = torch.as_tensor(self.metric.distance(goals, targets))
         if bool(torch.isnan(distance).any()):
             raise ValueError("the metric returned NaN distances; goals must be finite")
@@ -138,7 +138,7 @@ class CherSampler(Sampler):
         }
         return pool[chosen], info
 
-    def _similarity_graph(self, goals: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def similarity_graph(self, goals: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Each pool goal's k nearest other pool goals and their similarity exp(−d²/mean(d)²)."""
         points = goals.detach().cpu().to(torch.float64).numpy()
         k = min(self.neighbours, len(points) - 1)

@@ -223,6 +223,11 @@ class GraphCurriculumSampler(Sampler):
         self._pool: _Pool | None = None  # scored candidates of the next samples, dropped at every write
         self._saved_pool: dict | None = None  # a loaded state's pool, drawn again at the next sample
 
+    @property
+    def cache_bytes(self) -> int:
+        """Bytes of the per-row cache (28 per stored row, sized to the storage's capacity at the first sample)."""
+        return 0 if self._rows is None else self._rows.numel() * self._rows.element_size()
+
     def stop_curriculum(self) -> None:
         """From now on, plain sampling: one candidate per sample (EBP or uniform, as the candidates are
         drawn), as GC-HGG does once HGG's stop condition switches the run to target goals. Kept in
