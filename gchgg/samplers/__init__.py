@@ -1,8 +1,9 @@
 """Replay-buffer samplers for goal-conditioned TorchRL pipelines: EBP, graph curriculum (Alg. 1), CHER, λ schedules."""
 
 from gchgg.samplers.cher import CherSampler
-from gchgg.samplers.curriculum import GraphCurriculumSampler, nearest_neighbour_distances
+from gchgg.samplers.curriculum import GraphCurriculumSampler
 from gchgg.samplers.energy import EnergySampler
+from gchgg.samplers.nearest import NearestNeighbours, nearest_neighbour_distances
 from gchgg.samplers.tradeoff import AdaptiveTradeoff, ExponentialTradeoff, FixedTradeoff, Tradeoff, as_tradeoff
 
 __all__ = [
@@ -14,5 +15,6 @@ __all__ = [
     "GraphCurriculumSampler",
     "Tradeoff",
     "as_tradeoff",
+    "NearestNeighbours",
     "nearest_neighbour_distances",
 ]

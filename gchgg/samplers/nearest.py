@@ -1,0 +1,359 @@
+"""Exact nearest-neighbour metric distances within batches of goals (F_div of eq. 19), via a Euclidean shortlist.
+
+The engine behind :class:`~gchgg.samplers.GraphCurriculumSampler`'s diversity term, apart from the
+sampler: :class:`NearestNeighbours` (reusable, with its scratch memory) and
+:func:`nearest_neighbour_distances` (one-off). ``tests/test_samplers.py`` checks it against a
+brute-force all-pairs minimum.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch
+
+from gchgg.validation import check_number
+
+__all__ = ["POINT_SIZE", "NearestNeighbours", "check_distances", "nearest_neighbour_distances"]
+
+POINT_SIZE = 6  # values per shortlist point: (x, y, z, |p|², 1, id)
+_BOUND_TOLERANCE = 1e-3  # metres: slack on the Euclidean lower bound (float32 rounding of |a|² + |b|² − 2a·b)
+_LEVEL_SLACK = 2  # levels added to every squared distance so float32 rounding never makes one negative
+_INT32_MAX = 2**31 - 1
+_SWAP = torch.tensor([0, 1, 2, 4, 3])  # point columns (x, y, z, |p|², 1) -> (x, y, z, 1, |p|²)
+
+
+def nearest_neighbour_distances(
+    goals: torch.Tensor, metric, neighbours: int | None = 3, *, block: int = 32, stats: dict | None = None
+) -> torch.Tensor:
+    """Metric distance from each goal to its nearest other goal of the same batch: min_{j≠i} d(g_i, g_j).
+
+    A one-off :class:`NearestNeighbours` (which keeps its scratch memory between calls).
+
+    Args:
+        goals: ``[K, B, 3]``: K batches of B goals.
+        metric: object with ``distance(a, b)``.
+        neighbours: shortlist length, ``None`` for all pairs.
+        block: goals per block of the shortlist search (see :class:`NearestNeighbours`).
+        stats: if given, ``stats["rescored"]`` is set to the number of goals the shortlist did not
+            prove (for which the goals within the Euclidean bound were read too).
+
+    Returns:
+        float32 ``[K, B]``, ``inf`` where a goal has no finite distance to any other (or B = 1).
+    """
+    return NearestNeighbours(metric, neighbours, block)(goals, stats=stats)
+
+
+class NearestNeighbours:
+    """Exact nearest-neighbour metric distances within batches of goals, via a Euclidean shortlist.
+
+    Each goal becomes a *point* once (:meth:`points`, which a sampler can cache per stored row):
+    its position relative to a fixed origin (the lattice vertex for a graph metric, whose
+    distance never undercuts the straight line between vertices; off-graph goals parked together
+    far outside the field), the squared norm, a 1, and its vertex index (graph) or 0.
+
+    Per batch of B goals: the goals are sorted along the field's longest axis and cut into blocks
+    of ``block`` consecutive goals; each block is compared with itself and its two neighbouring
+    blocks (a window of ``3 · block`` goals; all B goals when B ≤ 3 · block). One batched matrix
+    product ``[p, |p|², 1] · [-2p, 1, |p|² + 2q]ᵀ / q`` gives the window's squared distances in
+    levels of q = (2·max|p|)² / levels (the +2 keeps float32 rounding above 0); they are truncated
+    to int32 in place with the window column packed below (``key = level · W + column``), so
+    ``neighbours + 1`` value-only ``amin`` passes give each goal its ``neighbours`` nearest goals in
+    the window and the level of the next one (faster than ``topk`` here). Only those pairs are read
+    from the metric. A goal outside the shortlist is at least ``min(next level, gap)`` away, where
+    the gap is the distance along the sort axis to the nearest goal outside the window; where the
+    shortlist's best metric distance is within that bound it is the exact nearest neighbour (for
+    any metric never shorter than the straight line), and for the few other goals the metric is
+    also read for every goal whose straight-line distance is below the best distance found.
+
+    Cost for K batches: K·B·3·block·5 multiply-adds and about ten passes over K·B·3·block int32
+    keys (786 KB for K = 8, B = 256, block = 32: in the core's L2 cache, where all K·B² keys
+    would not be), K·B·neighbours metric reads, and a few more per unproven goal.
+
+    Args:
+        metric: object with ``distance(a, b)`` on goals ``[..., 3]``.
+        neighbours: shortlist length ≥ 1, or ``None`` to score all pairs with the metric.
+        block: goals per block (≥ 2); batches of at most ``3 · block`` goals are one block.
+    """
+
+    def __init__(self, metric, neighbours: int | None = 3, block: int = 32) -> None:
+        check_number("block", block, integer=True, low=2)
+        self.metric = metric
+        self.neighbours = neighbours
+        self.block = block
+        self._graph = metric.lattice  # the graph's vertex view (snap, table lookups), or None: goals as they are
+        self._snap = self._graph is not None
+        self._origin: torch.Tensor | None = None
+        self._axis = 0  # the coordinate goals are sorted by: the field's longest (graph) or widest-spread one
+        self._lattice: torch.Tensor | None = None  # graph vertices relative to the origin
+        self._park: torch.Tensor | None = None  # where off-graph goals are put
+        self._reach = 0.0  # graph: the largest |p| of any point (the parking distance)
+        self._scratch: dict[Any, Any] = {}
+
+    @property
+    def snaps(self) -> bool:
+        """Whether the metric has a :class:`~gchgg.graph.Lattice` whose vertices goals are snapped to."""
+        return self._snap
+
+    def points(self, goals: torch.Tensor) -> torch.Tensor:
+        """float32 ``[..., 6]`` shortlist points of goals ``[..., 3]``: ``(x, y, z, |p|², 1, id)``.
+
+        ``p`` is the goal's lattice vertex (graph metrics; off-graph goals: a parking spot far outside
+        the field) or the goal itself, relative to a fixed origin (the field's centre, or the first
+        goals' mean); ``id`` is the vertex index (``-1`` off the graph) or 0.
+        """
+        goals = torch.as_tensor(goals)
+        if self._snap:
+            self._setup_graph()
+            vertex = self._graph.vertex_index(goals)
+            position = torch.where((vertex >= 0).unsqueeze(-1), self._lattice[vertex], self._park)
+            ident = vertex.float()  # exact: < 2**24 vertices
+        else:
+            goals = goals.float()
+            if not bool(torch.isfinite(goals).all()):
+                raise ValueError("goals must be finite for a metric without a graph (NaN or inf found)")
+            if self._origin is None:
+                flat = goals.reshape(-1, 3)
+                self._origin = flat.mean(0) if len(flat) else torch.zeros(3)
+                self._axis = int(flat.std(0).argmax()) if len(flat) > 1 else 0
+            position = goals - self._origin
+            ident = torch.zeros(goals.shape[:-1])
+        norm = position.square().sum(-1, keepdim=True)
+        return torch.cat([position, norm, torch.ones_like(norm), ident.unsqueeze(-1)], -1)
+
+    def _setup_graph(self) -> None:
+        if self._lattice is not None:
+            return
+        graph = self._graph
+        vertices = torch.as_tensor(graph.vertices, dtype=torch.float32)
+        center, half = (torch.as_tensor(v, dtype=torch.float32) for v in graph.field)
+        self._origin = center
+        self._axis = int(half.argmax())
+        self._lattice = vertices - center
+        # Parked at 1.5 field diagonals along the sort axis: farther from every vertex than any two
+        # vertices are apart, and sorted after all of them.
+        diagonal = 2.0 * float(half.norm())
+        self._reach = 1.5 * max(diagonal, 1e-3)
+        self._park = torch.zeros(3)
+        self._park[self._axis] = self._reach
+
+    def __call__(self, goals: torch.Tensor, *, stats: dict | None = None) -> torch.Tensor:
+        """Nearest-neighbour distances ``[K, B]`` of goals ``[K, B, 3]``."""
+        goals = torch.as_tensor(goals)
+        return self.from_points(self.points(goals), None if self._snap else goals, stats=stats)
+
+    def from_points(
+        self, points: torch.Tensor, goals: torch.Tensor | None = None, *, stats: dict | None = None
+    ) -> torch.Tensor:
+        """Nearest-neighbour distances ``[K, B]`` from the goals' :meth:`points` ``[K, B, 6]`` (made by this
+        object). A metric without a graph also needs the goals ``[K, B, 3]`` themselves."""
+        k, b = points.shape[:2]
+        if b < 2:
+            return torch.full((k, b), math.inf)
+        if not self._snap and goals is None:
+            raise ValueError("NearestNeighbours.from_points: a metric without a graph needs the goals [K, B, 3]")
+        m = self.neighbours
+        if m is None or m >= b - 1:  # all pairs
+            if stats is not None:
+                stats["rescored"] = 0
+            distance = self._pairs(points[..., 5].long(), goals)(
+                torch.arange(b).view(1, b, 1), torch.arange(b).view(1, 1, b), torch.arange(k).view(k, 1, 1)
+            ).clone()
+            distance.diagonal(dim1=-2, dim2=-1).fill_(math.inf)
+            return distance.min(-1).values
+
+        if self._snap:
+            self._setup_graph()
+        # Sorted along the axis, neighbours in space are mostly neighbours in the order.
+        order = torch.from_numpy(np.argsort(points[..., self._axis].numpy(), -1))  # faster than torch's here
+        points = points.gather(1, order.unsqueeze(-1).expand(points.shape))
+        if goals is not None and not self._snap:
+            goals = goals.gather(1, order.unsqueeze(-1).expand(k, b, goals.shape[-1]))
+        vertex = points[..., 5].long()  # [K, B]: -1 off the graph (and 0 for other metrics)
+        pair = self._pairs(vertex, goals)
+        cols, bound = self._shortlist(points, m)  # sorted positions [K, B, m], lower bound [K, B] on the rest
+        if self._snap:  # the same lookup as pair(rows, cols, batch), with fewer index operations
+            candidates = vertex.gather(1, cols.reshape(k, b * m)).view(k, b, m)
+            nearest = self._lookup(vertex.unsqueeze(-1), candidates).amin(-1)  # [K, B]
+        else:
+            nearest = pair(torch.arange(b).view(1, b, 1), cols, torch.arange(k).view(k, 1, 1)).amin(-1)
+        # Proven where the shortlist beats every goal outside it (a distance of 0, a duplicate goal,
+        # always does). For the others, only goals nearer in a straight line than the best distance
+        # so far can be nearer: read those (usually a handful) from the metric too.
+        unproven = nearest > bound
+        if self._snap:
+            unproven &= vertex >= 0  # an off-graph goal is inf from everything
+        if stats is not None:
+            stats["rescored"] = int(unproven.sum())
+        if bool(unproven.any()):
+            kk, ii = unproven.nonzero(as_tuple=True)
+            best = nearest[kk, ii]
+            planar = points[..., :3].transpose(1, 2)  # [K, 3, B]: coordinate planes, for a fast sum
+            straight = (planar[kk] - points[kk, ii, :3].unsqueeze(-1)).square_().sum(1).sqrt_()  # [U, B]
+            straight.sub_(self._tolerance()).scatter_(1, ii.unsqueeze(1), math.inf)  # not itself
+            uu, jj = (straight < best.unsqueeze(-1)).nonzero(as_tuple=True)
+            if len(uu):
+                best = best.scatter_reduce(0, uu, pair(ii[uu], jj, kk[uu]), reduce="amin")
+                nearest[kk, ii] = best
+        return torch.empty_like(nearest).scatter_(1, order, nearest)
+
+    def _pairs(self, vertex: torch.Tensor, goals: torch.Tensor | None):
+        """``pair(rows, cols, batch)``: metric distance of goal ``rows`` to goals ``cols`` (indices within
+        candidate ``batch``), broadcasting; from the goals' vertex indices ``[K, B]`` for a graph."""
+        b = vertex.shape[1]
+        if self._snap:
+            flat = vertex.reshape(-1)
+
+            def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
+                return self._lookup(flat[batch * b + rows], flat[batch * b + cols])
+        else:
+            metric = self.metric
+
+            def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
+                return check_distances(metric.distance(goals[batch, rows], goals[batch, cols]), "diversity metric")
+
+        return pair
+
+    def _lookup(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
+        """Graph distance between vertex indices (the graph's unchecked lookup where it has one)."""
+        return self._graph.pair_distance(i, j)  # unchecked: the indices come from the graph
+
+    def _tolerance(self) -> float:
+        """Metres the straight-line bound is lowered by: float32 rounding, and for a graph half its
+        table's resolution (its distances are rounded to it)."""
+        return _BOUND_TOLERANCE + (0.5 * float(self._graph.resolution) if self._snap else 0.0)
+
+    def _shortlist(self, points: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """For points sorted along the axis ``[K, B, 6]``: each one's m nearest others in its window, as
+        sorted positions ``[K, B, m]``, and a lower bound in metres ``[K, B]`` on its straight-line
+        distance to every other goal (outside the window: the gap along the axis)."""
+        k, b, _ = points.shape
+        layout = self._layout(b, m)
+        size, pad, blocks, width, stride = (layout[key] for key in ("size", "pad", "blocks", "width", "stride"))
+        levels = _levels(stride)
+        # |p_i − p_j| ≤ 2·max|p|: no pair is above the top level, so no clamp is needed. For a graph
+        # max|p| is the parking distance; otherwise it is read from the points.
+        reach = self._reach if self._snap else float(points[..., 3].amax()) ** 0.5
+        quantum = max(4.0 * reach * reach, 1e-12) / levels
+        left = points[..., :5]  # [p, |p|², 1]
+        rows = blocks * size
+        if pad or rows != b:  # padding rows (zeros, masked below) around the sorted goals
+            padded = left.new_zeros(k, rows + 2 * pad, 5)
+            padded[:, pad : pad + b] = left
+        else:
+            padded = left
+        # [p, |p|², 1] -> [-2p, 1, |p|² + slack·q] / q (padding rows -> [0, 0, slack]).
+        scale, shift = self._product_map(quantum)
+        right = torch.addcmul(shift, padded.index_select(-1, _SWAP), scale)
+        windows = right.unfold(1, width, size).reshape(k * blocks, 5, width)
+        own = padded[:, pad : pad + rows].reshape(k * blocks, size, 5)
+        squared = self._buffer("squared", (k * blocks, size, width), torch.float32)
+        torch.bmm(own, windows, out=squared)  # squared distance in levels, + _LEVEL_SLACK
+        # In place (same 4-byte slots, element by element: one scratch matrix, half the cache footprint).
+        keys = squared.view(torch.int32)
+        keys.copy_(squared)  # truncation: level + slack - 1 <= key level <= level + slack (float32 rounding < 1 level)
+        # key = level · S + column (S: a power of two >= W), above every pair's key for the goal itself
+        # and padding columns.
+        blocked = keys.view(k, blocks, size, width)
+        torch.add(layout["offset"], blocked, alpha=stride, out=blocked)
+        flat, mask = keys.view(-1), stride - 1
+        starts = self._row_starts(k * blocks * size, width).view(k * blocks, size, 1)  # flat index of each row
+        nearest = []
+        for _ in range(m):
+            low = keys.amin(-1, keepdim=True)  # [K·blocks, size, 1]
+            nearest.append(low)
+            flat.index_fill_(0, torch.add(starts, low.bitwise_and(mask)).view(-1), _INT32_MAX)
+        cols = torch.cat(nearest, -1).bitwise_and_(mask).long().view(k, rows, m)
+        cols = cols[:, :b].add_(layout["first"])  # window column -> sorted position
+        bound = _distance(keys.amin(-1).view(k, rows)[:, :b].bitwise_right_shift_(stride.bit_length() - 1), quantum)
+        # Goals outside the window are at least the gap along the axis away.
+        axis = points[..., self._axis]
+        ends = torch.cat([axis.new_full((k, 1), -math.inf), axis, axis.new_full((k, 1), math.inf)], 1)
+        gap = torch.minimum(axis - ends[:, layout["before"]], ends[:, layout["after"]] - axis)
+        return cols, torch.minimum(bound, gap).sub_(self._tolerance()).clamp_(min=0.0)
+
+    def _layout(self, b: int, m: int) -> dict[str, Any]:
+        """Block geometry for B goals, kept per (B, m): block size, padding, number of blocks, window
+        width, the keys' column numbers, the mask of excluded keys (a goal itself, padding), each
+        sorted position's first window position, and its nearest goals outside the window (indices
+        into the axis values with -inf / +inf put at both ends)."""
+        cached = self._scratch.get(("layout", b, m))
+        if cached is not None:
+            return cached
+        size = self.block
+        if b > 3 * size and size > m:
+            pad, blocks, width = size, -(-b // size), 3 * size
+        else:  # one window holds every goal
+            size, pad, blocks, width = b, 0, 1, b
+        block = torch.arange(blocks).view(blocks, 1, 1)
+        row = torch.arange(size).view(1, size, 1)
+        column = torch.arange(width).view(1, 1, width)
+        padded = block * size + column  # padded position of each window column
+        excluded = (padded < pad) | (padded >= pad + b) | (column == row + pad)
+        # Keys are level · S + offset. A pair's level is at most levels + slack, so its key is below
+        # (levels + slack + 1) · S; excluded entries (level <= slack + 1: the goal itself, padding) get
+        # (levels + 2·slack + 2) · S more, which keeps them above every pair and below int32 max.
+        stride = 1 << (width - 1).bit_length()
+        offset = column.expand(blocks, size, width) + excluded * ((_levels(stride) + 2 * _LEVEL_SLACK + 2) * stride)
+        position = torch.arange(b)
+        start = (position // size) * size - pad  # sorted position of the window's first column
+        if pad:
+            before = (start - 1).clamp(min=-1) + 1
+            after = torch.where(start + width < b, start + width + 1, b + 1)
+        else:
+            before, after = torch.zeros(b, dtype=torch.long), torch.full((b,), b + 1)
+        layout = self._scratch[("layout", b, m)] = {
+            "size": size,
+            "pad": pad,
+            "blocks": blocks,
+            "width": width,
+            "stride": stride,
+            "offset": offset.to(torch.int32).contiguous(),
+            "first": start.view(1, b, 1),
+            "before": before,
+            "after": after,
+        }
+        return layout
+
+    def _row_starts(self, rows: int, width: int) -> torch.Tensor:
+        """Flat index of the first key of each of ``rows`` rows of ``width`` keys (kept per shape)."""
+        cached = self._scratch.get(("starts", rows, width))
+        if cached is None:
+            cached = self._scratch[("starts", rows, width)] = torch.arange(0, rows * width, width)
+        return cached
+
+    def _product_map(self, quantum: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """``scale, shift`` with ``[p, 1, |p|²] · scale + shift = [-2p, 1, |p|² + slack·q] / q`` (kept per quantum)."""
+        cached = self._scratch.get("map")
+        if cached is None or cached[0] != quantum:
+            scale = torch.tensor([-2.0, -2.0, -2.0, 1.0, 1.0]) / quantum
+            shift = torch.tensor([0.0, 0.0, 0.0, 0.0, float(_LEVEL_SLACK)])
+            cached = self._scratch["map"] = (quantum, (scale, shift))
+        return cached[1]
+
+    def _buffer(self, name: str, shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
+        buffer = self._scratch.get(name)
+        if buffer is None or buffer.shape != shape:
+            buffer = self._scratch[name] = torch.empty(shape, dtype=dtype)
+        return buffer
+
+
+def _levels(stride: int) -> int:
+    """Squared-distance levels for keys ``level · stride + column`` (room is left for excluded entries)."""
+    return _INT32_MAX // stride - 4 * _LEVEL_SLACK - 4
+
+
+def _distance(level: torch.Tensor, quantum: float) -> torch.Tensor:
+    """A lower bound in metres on the distance of a pair whose key has this level: the level less the
+    slack and one more for float32 rounding (at least 0), times the quantum, square-rooted."""
+    return (level - (_LEVEL_SLACK + 1)).clamp_(min=0).float().mul_(quantum).sqrt_()
+
+
+def check_distances(distance: torch.Tensor, name: str) -> torch.Tensor:
+    """``distance`` as a tensor; a ``ValueError`` naming the metric if it holds NaN."""
+    distance = torch.as_tensor(distance)
+    if bool(torch.isnan(distance).any()):
+        raise ValueError(f"the {name} returned NaN distances; goals must be finite")
+    return distance
