@@ -118,6 +118,15 @@ def group_runs(runs: Sequence[Run]) -> dict[tuple[str, str], list[Run]]:
         configured = [r for r in members if r.settings]
         keys = sorted({k for r in configured for k in r.settings if not k.startswith(_IGNORED)})
         differing = [k for k in keys if len({r.settings.get(k) for r in configured}) > 1]
+        if "algo.name" in differing:  # settings an algo choice implies (its sampler, metric, ...) add nothing
+            by_algo: dict[str, list[Run]] = {}
+            for r in configured:
+                by_algo.setdefault(r.settings.get("algo.name"), []).append(r)
+            implied = {
+                k for k in differing
+                if k != "algo.name" and all(len({r.settings.get(k) for r in rs}) == 1 for rs in by_algo.values())
+            }  # fmt: skip
+            differing = [k for k in differing if k not in implied]
         for run in members:
             if run.settings:
                 label = ", ".join(f"{k}={run.settings.get(k)}" for k in differing) or run.settings.get("algo.name", "run")
@@ -192,7 +201,7 @@ def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100
             cells.append(_fmt(iqr(values[:, i]), 2) if i < values.shape[1] else "—")
         cells.append(_fmt(iqr([r.column(column)[-1] for r in runs]), 2))
         cells.append(_fmt(iqr([r.rows[-1]["iteration"] for r in runs])))
-        stops = [first_at(r, 1.0, "stopped") for r in runs if "stopped" in r.rows[-1]]
+        stops = [first_at(r, 1.0, "stopped") for r in runs if "d_g" in r.rows[-1]]  # runs with a goal generator
         cells.append(f"{_fmt(iqr(stops))}" if stops else "—")
         decided = [np.nanmean(r.column("diversity_decided")) for r in runs if "diversity_decided" in r.rows[-1]]
         cells.append(f"{np.mean(decided):.2f}" if decided else "—")

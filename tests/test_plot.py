@@ -28,7 +28,7 @@ def sweep(tmp_path):
     make_run(tmp_path / "a0", "ghgg", 0, [0.0, 0.5, 0.9, 0.95])
     make_run(tmp_path / "a1", "ghgg", 1, [0.0, 0.2, 0.6, 0.7])
     make_run(tmp_path / "a2", "ghgg", 2, [0.0, 0.0, 0.1])  # shorter: held at 0.1
-    make_run(tmp_path / "b0", "gchgg", 0, [0.1, 0.9, 1.0], extra={"diversity_decided": [0.2, 0.4, 0.6], "stopped": [0, 0, 1]})
+    make_run(tmp_path / "b0", "gchgg", 0, [0.1, 0.9, 1.0], extra={"diversity_decided": [0.2, 0.4, 0.6], "stopped": [0, 0, 1], "d_g": [0.5, 0.4, 0.0]})
     make_run(tmp_path / "b1", "gchgg", 1, [0.0, 0.0, 0.5], scale="standardized")
     return tmp_path
 
