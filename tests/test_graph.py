@@ -1,4 +1,4 @@
-"""Tests of the goal-space graph and d_G (gchgg/graph.py) against an independent networkx lattice."""
+"""Tests of the goal-space graph and d_G (gchgg/graph/) against an independent networkx lattice."""
 
 import doctest
 import itertools
@@ -12,7 +12,8 @@ import pytest
 import torch
 from scipy.sparse.csgraph import dijkstra
 
-import gchgg.graph
+import gchgg.graph.lattice
+import gchgg.graph.metric
 from gchgg.graph import (
     DEFAULT_MARGIN,
     DEFAULT_N,
@@ -21,8 +22,8 @@ from gchgg.graph import (
     Metric,
     check_density_criterion,
     default_cache_dir,
-    main,
 )
+from gchgg.graph.__main__ import main
 
 # A 0.8 × 0.8 × 0.2 m field with 0.1 m spacing (9 × 9 × 3 vertices) and a wall along x at y = 0 that
 # leaves a gap at x = 0.3 and 0.4 (without margin the wall removes x = -0.4 .. 0.2 at y = 0).
@@ -455,4 +456,5 @@ def test_cli_draws_push_new(tmp_path, capsys):
 
 
 def test_docstring_examples_run():
-    assert doctest.testmod(gchgg.graph, raise_on_error=False).failed == 0
+    for module in (gchgg.graph.lattice, gchgg.graph.metric):
+        assert doctest.testmod(module, raise_on_error=False).failed == 0

@@ -1,4 +1,4 @@
-"""Obstacle-aware goal-space graph and its shortest-path distance d_G (Sec. III-C, IV-B, eqs. 8–14).
+"""The obstacle-aware lattice graph :class:`GoalGraph` and its distance table d_G (Sec. III-C, IV-B, eqs. 8–14).
 
 A :class:`GoalGraph` lays an orthorhombic lattice over a box-shaped goal-space field (eqs. 9–10),
 removes the vertices inside every obstacle inflated by a safety margin ε (Sec. IV-B), joins each
@@ -27,12 +27,10 @@ Decisions where the paper is silent (the README's graph section repeats them):
   checked (magic, header and table CRC-32, size) before use: a damaged file is rebuilt, never used.
   A lock file lets one process build while others constructing the same graph wait and load.
 
-Run ``python -m gchgg.graph push_new --out graph.png`` to draw a task's graph and one shortest path.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import hashlib
 import itertools
@@ -48,24 +46,15 @@ import warnings
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Literal, Protocol, runtime_checkable
+from typing import Any, Literal
 
 import numpy as np
 import torch
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
-__all__ = [
-    "DEFAULT_MARGIN",
-    "DEFAULT_N",
-    "EuclideanMetric",
-    "GoalGraph",
-    "Metric",
-    "USER_CACHE_DIR",
-    "check_density_criterion",
-    "default_cache_dir",
-    "plot_path",
-]
+
+__all__ = ["DEFAULT_MARGIN", "DEFAULT_N", "USER_CACHE_DIR", "GoalGraph", "check_density_criterion", "default_cache_dir"]
 
 _log = logging.getLogger(__name__)
 
@@ -82,66 +71,6 @@ _MAGIC = b"GCHGGDG\x01"
 _FORMAT = 1  # bump when the table's layout or encoding changes: old cache files then miss
 _PREFIX = struct.Struct("<8sII")  # magic, header length, CRC-32 of the header
 _AXES = "xyz"
-
-
-@runtime_checkable
-class Lattice(Protocol):
-    """The vertex view of a graph metric: what consumers that score many goals read instead of
-    calling ``distance`` pair by pair (the curriculum's nearest-neighbour search, HGG's costs)."""
-
-    field: tuple[tuple[float, float, float], tuple[float, float, float]]  # (centre, half-sizes), metres
-
-    @property
-    def vertices(self) -> torch.Tensor: ...  # float32 [V, 3] vertex positions
-
-    @property
-    def resolution(self) -> float: ...  # metres: distances are rounded to this (0: exact)
-
-    def vertex_index(self, goals: torch.Tensor) -> torch.Tensor: ...  # eq. 14; -1 off the graph
-
-    def distance_between_vertices(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor: ...  # checked
-
-    def pair_distance(self, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor: ...  # unchecked, for hot loops
-
-
-@runtime_checkable
-class Metric(Protocol):
-    """A goal metric: ``distance(a, b)`` on goals ``[..., 3]``, broadcasting, to float32 ``[...]``, and
-    its ``lattice`` (a :class:`Lattice` for a graph metric, ``None`` for one that works on goals
-    directly). Consumers read ``lattice`` rather than asking which metric they hold."""
-
-    def distance(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor: ...
-
-    @property
-    def lattice(self) -> Lattice | None: ...
-
-
-class EuclideanMetric:
-    """The Euclidean goal distance ‖a − b‖, with the same interface as :class:`GoalGraph`.
-
-    Example:
-        >>> import torch
-        >>> EuclideanMetric().distance(torch.zeros(2, 3), torch.tensor([3.0, 4.0, 0.0]))
-        tensor([5., 5.])
-    """
-
-    lattice = None  # no vertices: distances are computed on the goals themselves
-
-    def distance(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """Euclidean distance between goals.
-
-        Args:
-            a: goals ``[..., 3]``.
-            b: goals ``[..., 3]``, broadcastable against ``a``.
-
-        Returns:
-            float32 ``[...]``: ‖a − b‖ (finite for finite goals; there is no field here).
-        """
-        a, b = torch.as_tensor(a), torch.as_tensor(b)
-        return torch.linalg.vector_norm(a - b, dim=-1).to(torch.float32)
-
-    def __repr__(self) -> str:
-        return "EuclideanMetric()"
 
 
 def default_cache_dir() -> Path:
@@ -202,6 +131,7 @@ class GoalGraph:
 
     Example:
         >>> import torch
+        >>> from gchgg.graph import EuclideanMetric
         >>> wall = ((-0.3, 0.0, 0.0), (0.7, 0.1, 0.2))  # x from -1.0 to 0.4: pass it at x > 0.4
         >>> graph = GoalGraph(((0.0, 0.0, 0.0), (1.0, 1.0, 0.1)), [wall], n=(21, 21, 3), margin=0.0,
         ...                   cache_dir=None)
@@ -783,135 +713,3 @@ def _lattice_size(n: Any) -> tuple[int, int, int]:
 
 
 # ---------------------------------------------------------------------- picture and CLI
-
-
-def plot_path(graph: GoalGraph, a: torch.Tensor, b: torch.Tensor, ax=None):
-    """Draw a graph slice, its obstacles and the graph path from ``a`` to ``b`` beside the straight line.
-
-    The view plane is spanned by the axis along which ``a`` and ``b`` differ most and the axis along
-    which the graph path leaves the straight line most; the free and removed vertices shown are the
-    lattice slice through ``a``'s vertex, and the path is projected onto that plane.
-
-    Args:
-        graph: the graph to draw.
-        a: start goal ``[3]``.
-        b: end goal ``[3]``.
-        ax: matplotlib axes to draw on; a new figure's axes by default.
-
-    Returns:
-        The matplotlib axes.
-    """
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Rectangle
-
-    a, b = torch.as_tensor(a, dtype=torch.float32), torch.as_tensor(b, dtype=torch.float32)
-    path = graph.shortest_path(a, b)
-    d_graph = graph.distance(a, b).item()
-    d_line = EuclideanMetric().distance(a, b).item()
-    main = int((b - a).abs().argmax())
-    others = [k for k in range(3) if k != main]
-    if len(path) > 1:
-        t = ((path[:, main] - a[main]) / (b[main] - a[main])).clamp(0, 1)
-        deviation = (path - (a + t[:, None] * (b - a))).abs().amax(0)
-        side = max(others, key=lambda k: (deviation[k].item(), graph.high[k] - graph.low[k]))
-    else:
-        side = max(others, key=lambda k: graph.high[k] - graph.low[k])
-    h, v = sorted((main, side))
-    (depth,) = {0, 1, 2} - {h, v}
-    level = round((a[depth].item() - graph.low[depth]) / graph.spacing[depth])
-    level = min(max(level, 0), graph.n[depth] - 1)  # the lattice slice through a's vertex
-    depth_value = graph.low[depth] + level * graph.spacing[depth]
-
-    if ax is None:
-        aspect = (graph.high[v] - graph.low[v]) / (graph.high[h] - graph.low[h])
-        _, ax = plt.subplots(figsize=(5.0, min(max(5.0 * aspect, 2.5), 7.0) + 0.8))
-    axes = graph.lattice_axes
-    grid = np.meshgrid(axes[h].numpy(), axes[v].numpy(), indexing="ij")
-    free = np.take(graph.free_mask.numpy(), level, axis=depth)  # [n_h, n_v]
-    ax.scatter(grid[0][free], grid[1][free], s=4, c="0.6", lw=0, label="free vertices (slice)")
-    ax.scatter(grid[0][~free], grid[1][~free], s=8, c="tab:red", marker="x", lw=0.6,
-               label="removed vertices")
-
-    def rectangle(low, high, **style):
-        ax.add_patch(Rectangle((low[h], low[v]), high[h] - low[h], high[v] - low[v], **style))
-
-    label = f"obstacle + margin {graph.margin:g} m"
-    for low, high in graph.inflated_obstacles:
-        if low[depth] - 1e-9 <= depth_value <= high[depth] + 1e-9:
-            rectangle(low, high, fill=False, ls="--", ec="tab:red", lw=1.0, label=label)
-            label = None
-    label = "obstacle"
-    for center, half in graph.obstacles:
-        low, high = np.asarray(center) - half, np.asarray(center) + half
-        if low[depth] <= depth_value <= high[depth]:
-            rectangle(low, high, fc="tab:blue", alpha=0.35, ec="none", label=label)
-            label = None
-    rectangle(graph.low, graph.high, fill=False, ec="0.3", lw=0.8)
-    ax.plot([a[h], b[h]], [a[v], b[v]], "--", c="0.2", lw=1.5, label=f"straight line: {d_line:.3f} m")
-    if len(path):
-        ax.plot(path[:, h], path[:, v], "-o", c="tab:green", ms=3, lw=2,
-                label=f"graph path: d_G = {d_graph:.3f} m")
-    ax.plot(*a[[h, v]], "o", c="black", ms=7)
-    ax.plot(*b[[h, v]], "*", c="black", ms=11)
-    ax.annotate("a", a[[h, v]].tolist(), xytext=(6, -10), textcoords="offset points")
-    ax.annotate("b", b[[h, v]].tolist(), xytext=(6, 4), textcoords="offset points")
-    ax.set_xlabel(f"{_AXES[h]} (m)")
-    ax.set_ylabel(f"{_AXES[v]} (m)")
-    ax.set_aspect("equal")
-    projected = len(path) and (path[:, depth] - path[0, depth]).abs().max() > 1e-6
-    ax.set_title(
-        f"{'×'.join(map(str, graph.n))} lattice, slice {_AXES[depth]} = {depth_value:.3f} m"
-        + (" (path projected)" if projected else ""),
-        fontsize=10,
-    )
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
-    return ax
-
-
-def _demo_goals(geometry) -> tuple[torch.Tensor, torch.Tensor]:
-    """Two goals on either side of a task's obstacle: object start and target centre.
-
-    Tasks without an object get the corners of their target range.
-    """
-    if geometry.object_range is not None:
-        return torch.tensor(geometry.object_range.center), torch.tensor(geometry.target_range.center)
-    return torch.tensor(geometry.target_range.low), torch.tensor(geometry.target_range.high)
-
-
-def main(argv: Sequence[str] | None = None) -> None:
-    """``python -m gchgg.graph <task> --out FILE.png``: draw a task's graph and one shortest path."""
-    from envs.geometry import TASKS, geometry
-
-    parser = argparse.ArgumentParser(
-        prog="python -m gchgg.graph",
-        description="Draw a task's goal-space graph, its obstacles and one shortest path.",
-    )
-    parser.add_argument("task", choices=TASKS)
-    parser.add_argument("--out", type=Path, required=True, help="PNG file to write")
-    parser.add_argument("--n", type=int, nargs=3, default=DEFAULT_N, metavar=("NX", "NY", "NZ"))
-    parser.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
-                        help="obstacle safety margin in metres")
-    parser.add_argument("--cache-dir", type=Path, default=None,
-                        help="distance-table cache folder (default: the per-user cache)")
-    args = parser.parse_args(argv)
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    task = geometry(args.task)
-    graph = GoalGraph(task.field, task.obstacles, args.n, args.margin,
-                      cache_dir=args.cache_dir if args.cache_dir is not None else USER_CACHE_DIR)
-    a, b = _demo_goals(task)
-    ax = plot_path(graph, a, b)
-    ax.set_title(f"{args.task}: {ax.get_title()}", fontsize=10)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    ax.figure.savefig(args.out, dpi=110, bbox_inches="tight")
-    plt.close(ax.figure)
-    print(f"{args.task}: d_G = {graph.distance(a, b).item():.4f} m, "
-          f"Euclidean = {EuclideanMetric().distance(a, b).item():.4f} m -> {args.out}")
-
-
-if __name__ == "__main__":
-    main()
