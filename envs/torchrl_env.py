@@ -27,7 +27,9 @@ class KukaEnv(EnvBase):
 
     ``reset`` reads from its input TensorDict, per env: ``desired_goal`` ``[N, 3]`` (used instead of
     a sampled goal) and, for tasks with an object, ``object_position`` ``[N, 3]`` (the object is
-    placed at rest at its x, y; z is the table's resting height). ``_reset`` ``[N, 1]`` bool resets
+    placed at rest at its x, y; z is the table's resting height). Both are declared in
+    ``state_spec``, so wrappers such as ``TransformedEnv`` pass them through; a reset returns the
+    object's start as ``object_position``, which a rollout carries along. ``_reset`` ``[N, 1]`` bool resets
     only the marked envs; the others keep their state.
 
     Args:
@@ -80,6 +82,12 @@ class KukaEnv(EnvBase):
         self.action_spec = Bounded(-1.0, 1.0, shape=(n, self.action_dim), dtype=torch.float32)
         self.reward_spec = Bounded(-1.0, 0.0, shape=(n, 1), dtype=torch.float32)
         self.done_spec = Composite(done=flag(), terminated=flag(), truncated=flag(), shape=(n,))
+        # Inputs a reset reads (per-env goals and object positions, as HGG hands them over): declared
+        # as state, so that TorchRL passes them through wrappers (TransformedEnv keeps only declared keys).
+        state = {"desired_goal": Unbounded((n, 3), dtype=torch.float32)}
+        if self.has_object:
+            state["object_position"] = Unbounded((n, 3), dtype=torch.float32)
+        self.state_spec = Composite(state, shape=(n,))
 
     def _set_seed(self, seed: int | None) -> None:
         for task, task_seed in zip(self._tasks, task_seeds(seed, self.num_envs)):
@@ -120,7 +128,10 @@ class KukaEnv(EnvBase):
             task.observe_into(physics, self._observation[i], self._achieved[i])
             self._steps[i] = 0
         truncated = torch.from_numpy(self._steps >= self.geometry.episode_length).unsqueeze(-1)
-        return self._output(truncated)
+        out = self._output(truncated)
+        if self.has_object:  # the state a reset can be given (see _make_specs), as the reset set it
+            out["object_position"] = out["achieved_goal"].clone()
+        return out
 
     # -- step -------------------------------------------------------------------------------------
 

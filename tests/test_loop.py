@@ -83,9 +83,11 @@ def record_resets_and_generations(t: train.Trainer) -> tuple[list, list]:
     return resets, generations
 
 
-def test_episodes_after_iteration_0_go_to_the_generators_goals_and_store_their_targets(tmp_path):
-    # reach: the achieved goal (the grip) always moves, so the pool fills after iteration 0
-    t = trainer(tmp_path, "train.episodes=4", "train.chunks=2", task="reach", algo="ghgg")
+@pytest.mark.parametrize("noise", ["noise.object_std=0.0", "noise.object_std=0.01"])
+def test_episodes_after_iteration_0_go_to_the_generators_goals_and_store_their_targets(noise, tmp_path):
+    # reach: the achieved goal (the grip) always moves, so the pool fills after iteration 0. With
+    # observation noise the env is wrapped in a TransformedEnv, which must still pass the goals.
+    t = trainer(tmp_path, "train.episodes=4", "train.chunks=2", noise, task="reach", algo="ghgg")
     resets, generations = record_resets_and_generations(t)
     for _ in range(2):  # 8 episodes: the buffer (tiny: 8 episodes) is full, not wrapped
         t.iteration_step()

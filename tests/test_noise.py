@@ -54,3 +54,21 @@ def test_noise_rejects_bad_settings():
         ObservationNoise(-0.1, [slice(3, 6)])
     with pytest.raises(ValueError, match="position slice of length 3"):
         ObservationNoise(0.01, [slice(3, 5)])
+
+
+@pytest.mark.parametrize("name", ["reach", "push_new"])
+def test_a_noisy_env_still_takes_the_goals_and_object_positions_a_reset_is_given(name):
+    # TransformedEnv passes only declared reset inputs: the KUKA envs declare them in state_spec.
+    env = TransformedEnv(envs.make(name, num_envs=2, seed=0),
+                         ObservationNoise(0.01, [slice(0, 3)], generator=torch.Generator().manual_seed(0)))
+    goals = torch.tensor([[0.8, 0.2, 0.87], [0.7, 0.1, 0.87]]) if name == "push_new" else torch.tensor(
+        [[0.7, 0.05, 1.25], [0.8, -0.05, 1.15]])
+    reset = {"desired_goal": goals}
+    if name == "push_new":
+        reset["object_position"] = torch.tensor([[0.75, 0.2, 0.87], [0.7, 0.25, 0.87]])
+    td = env.reset(TensorDict(reset, [2]))
+    assert torch.allclose(td["desired_goal"], goals)
+    if name == "push_new":
+        assert torch.allclose(td["true_achieved_goal"][:, :2], reset["object_position"][:, :2], atol=1e-6)
+    rollout = env.rollout(3, tensordict=td, auto_reset=False)
+    assert torch.allclose(rollout["next", "desired_goal"][:, -1], goals)

@@ -19,7 +19,8 @@ was collected for), ``achieved_goal``, ``energy`` (if :class:`~gchgg.transforms.
 first), and under ``next``: ``observation``, ``achieved_goal``, ``reward``, ``done``, ``terminated``,
 ``truncated``. Dropped by default (:data:`DEFAULT_DROP_KEYS`): ``("next", "desired_goal")`` (it
 equals ``desired_goal``; :class:`GoalToNext` puts it back at sample time for free), ``is_success``
-(valid for the collected goal only), and the root ``done``/``terminated``/``truncated`` copies.
+(valid for the collected goal only), the root ``done``/``terminated``/``truncated`` copies and
+``object_position`` (the KUKA envs' reset input, the object's start).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ DEFAULT_DROP_KEYS: tuple[NestedKey, ...] = (
     "done",
     "terminated",
     "truncated",
+    "object_position",  # a reset input of the KUKA envs (the object's start), constant over an episode
 )
 
 
