@@ -32,17 +32,46 @@ class Evaluation:
 
 
 def load_policy_file(run_dir: str | Path) -> dict:
-    """The run's ``policy.pt`` (see :meth:`gchgg.train.Trainer.save`), checked."""
+    """The run's ``policy.pt`` (see :meth:`gchgg.train.Trainer.save`), checked.
+
+    A run written before runs saved ``policy.pt`` has only ``checkpoint.pt``: its policy is then
+    read from the full checkpoint (slow: the replay buffer is read too) and its ``config.yaml``.
+    """
     from gchgg import checkpoint
 
     path = Path(run_dir)
+    folder = path if path.is_dir() else path.parent
     path = path / "policy.pt" if path.is_dir() else path
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"no policy at {path}: pass a run folder written by `python -m gchgg.train` after at least one "
-            f"checkpoint (runs save policy.pt beside checkpoint.pt)"
-        )
-    return checkpoint.load(path)
+    if path.is_file():
+        return checkpoint.load(path)
+    if path.name == "policy.pt" and (folder / "checkpoint.pt").is_file() and (folder / "config.yaml").is_file():
+        return _policy_from_checkpoint(folder)
+    raise FileNotFoundError(
+        f"no policy at {path}: pass a run folder written by `python -m gchgg.train` after at least one "
+        f"checkpoint (runs save policy.pt beside checkpoint.pt)"
+    )
+
+
+def _policy_from_checkpoint(folder: Path) -> dict:
+    """What ``policy.pt`` would hold, from an older run's ``checkpoint.pt`` and ``config.yaml``."""
+    from omegaconf import OmegaConf
+
+    from gchgg import checkpoint
+    from gchgg.agent import DDPGAgent
+
+    state = checkpoint.load(folder / "checkpoint.pt")
+    config = OmegaConf.to_container(OmegaConf.load(folder / "config.yaml"), resolve=True)
+    hparams = dict(state["agent"]["hparams"])
+    dims = [hparams.pop(k) for k in ("obs_dim", "goal_dim", "action_dim")]
+    agent = DDPGAgent(*dims, **hparams)
+    agent.load_state_dict(state["agent"])
+    return {
+        "iteration": state["iteration"],
+        "task": config["env"]["name"],
+        "threshold": float(config["env"]["threshold"]),
+        "config": config,
+        "policy": agent.policy_state(),
+    }
 
 
 def evaluate_policy(
