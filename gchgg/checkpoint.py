@@ -27,8 +27,9 @@ class CorruptCheckpointError(RuntimeError):
     """The checkpoint file is truncated, altered or not a gchgg checkpoint."""
 
 
-def save(state: dict[str, Any], path: str | os.PathLike) -> None:
-    """Write ``state`` to ``path`` atomically (temporary file + fsync + rename)."""
+def save(state: dict[str, Any], path: str | os.PathLike, *, mode: int | None = None) -> None:
+    """Write ``state`` to ``path`` atomically (temporary file + fsync + rename); ``mode`` sets the
+    file's permissions (default: the temporary file's 0600)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     buffer = io.BytesIO()
@@ -42,6 +43,8 @@ def save(state: dict[str, Any], path: str | os.PathLike) -> None:
             f.write(payload)
             f.flush()
             os.fsync(f.fileno())
+        if mode is not None:
+            os.chmod(tmp, mode)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -385,10 +385,11 @@ def test_cache_roundtrip_and_key(tmp_path):
     assert GoalGraph(FIELD, [], N, 0.0, cache_dir=tmp_path).cache_path != first.cache_path
     assert len(list(tmp_path.glob("goalgraph-*.bin"))) == 4
     assert not list(tmp_path.glob(".goalgraph-*"))  # no temporary files left behind
+    assert first.cache_path.stat().st_mode & 0o777 == 0o644  # readable like any cache file
 
 
 @pytest.mark.parametrize(
-    "damage", ["flip_payload", "flip_header", "truncate", "append", "empty", "garbage"]
+    "damage", ["flip_payload", "flip_header", "truncate", "append", "empty", "garbage", "other_graph"]
 )
 def test_damaged_cache_is_rebuilt_not_used(tmp_path, damage):
     good = wall_graph(cache_dir=tmp_path)
@@ -396,16 +397,16 @@ def test_damaged_cache_is_rebuilt_not_used(tmp_path, damage):
     data = bytearray(path.read_bytes())
     if damage == "flip_payload":
         data[-101] ^= 0x01
-    elif damage == "flip_header":  # still valid JSON, but the wrong resolution
-        start = data.index(b'"scale"') + len(b'"scale": ')
-        digit = next(k for k in range(start, len(data)) if data[k] in b"123456789")
-        data[digit] = ord("1") if data[digit] != ord("1") else ord("2")
+    elif damage == "flip_header":  # a bit of the stored checksum
+        data[12] ^= 0x01
     elif damage == "truncate":
         data = data[: len(data) // 2]
     elif damage == "append":
         data += b"\x00\x00"
     elif damage == "empty":
         data = bytearray()
+    elif damage == "other_graph":  # an intact file of another graph under this graph's name
+        data = bytearray(GoalGraph(FIELD, [], N, 0.0, cache_dir=tmp_path / "other").cache_path.read_bytes())
     else:
         data = bytearray(os.urandom(len(data)))
     path.write_bytes(bytes(data))

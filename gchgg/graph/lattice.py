@@ -24,7 +24,8 @@ Decisions where the paper is silent (the README's graph section repeats them):
   ``resolution / 2`` (about 0.04 mm for the KUKA fields; an error over 1 mm is refused).
 * **Cache.** The table is cached on disk under :func:`default_cache_dir`, keyed by a hash of the
   field, the obstacles, ``n``, the margin and the file format; files are written atomically and
-  checked (magic, header and table CRC-32, size) before use: a damaged file is rebuilt, never used.
+  checked before use (the project's checkpoint format: magic, SHA-256, length; then the graph it
+  describes and the table's shape): a damaged file is rebuilt, never used.
   A lock file lets one process build while others constructing the same graph wait and load.
 
 """
@@ -39,11 +40,8 @@ import logging
 import math
 import numbers
 import os
-import struct
-import tempfile
 import time
 import warnings
-import zlib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -52,6 +50,8 @@ import numpy as np
 import torch
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
+
+from gchgg import checkpoint
 
 
 __all__ = ["DEFAULT_MARGIN", "DEFAULT_N", "USER_CACHE_DIR", "GoalGraph", "check_density_criterion", "default_cache_dir"]
@@ -67,9 +67,7 @@ _MAX_ERROR = 1e-3  # metres: largest rounding error the 2-byte table may have
 _BOUNDARY_TOLERANCE = 1e-5  # metres: goals this close outside the field (or below a plane) are on it
 _MAX_TABLE_BYTES = 4 * 2**30  # refuse lattices whose table would not fit comfortably in memory
 _CHUNK_ROWS = 256  # Dijkstra source rows per chunk: bounds the float64 scratch at 256 × V × 8 bytes
-_MAGIC = b"GCHGGDG\x01"
-_FORMAT = 1  # bump when the table's layout or encoding changes: old cache files then miss
-_PREFIX = struct.Struct("<8sII")  # magic, header length, CRC-32 of the header
+_FORMAT = 2  # bump when the table's layout or encoding changes: old cache files then miss (2: checkpoint format)
 _AXES = "xyz"
 
 
@@ -489,15 +487,12 @@ class GoalGraph:
     def _load(self) -> np.ndarray | None:
         """The cached table, or ``None`` if absent or damaged (a damaged file gets a warning)."""
         path = self.cache_path
-        try:
-            file = open(path, "rb")
-        except OSError as error:  # absent, or a folder we cannot read: build (and try to write)
-            _log.debug("no usable graph cache file %s (%s)", path, error)
+        if not path.is_file():
+            _log.debug("no graph cache file %s", path)
             return None
         try:
-            with file:
-                table = self._read(file, os.fstat(file.fileno()).st_size)
-        except (_CorruptCache, OSError, ValueError) as error:
+            table = self._check_cached(checkpoint.load(path))
+        except (checkpoint.CorruptCheckpointError, _CorruptCache, OSError, ValueError, RuntimeError) as error:
             warnings.warn(
                 f"ignoring damaged graph cache file {path} ({error}); rebuilding it",
                 RuntimeWarning,
@@ -507,78 +502,42 @@ class GoalGraph:
         _log.info("loaded graph distance table from %s", path)
         return table
 
-    def _read(self, file, size: int) -> np.ndarray:
-        prefix = file.read(_PREFIX.size)
-        if len(prefix) != _PREFIX.size:
-            raise _CorruptCache("truncated header")
-        magic, header_size, header_crc = _PREFIX.unpack(prefix)
-        if magic != _MAGIC or header_size > 1 << 20:
-            raise _CorruptCache("not a graph table file")
-        raw = file.read(header_size)
-        if zlib.crc32(raw) != header_crc:
-            raise _CorruptCache("header checksum mismatch")
-        try:
-            header = json.loads(raw)
-        except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise _CorruptCache(f"unreadable header: {error}") from None
+    def _check_cached(self, state: Any) -> np.ndarray:
+        """The table of a cache file's state (the project's checksummed checkpoint format), checked
+        against this graph."""
         slots = self.num_vertices + 1
-        expected = {
-            "format": _FORMAT,
-            "key": self.cache_path.stem.removeprefix("goalgraph-"),
-            "vertices": self.num_vertices,
-        }
-        if not isinstance(header, dict) or any(header.get(k) != v for k, v in expected.items()):
-            raise _CorruptCache("header does not match this graph")
+        expected = {"format": _FORMAT, "key": self.cache_path.stem.removeprefix("goalgraph-"), "vertices": self.num_vertices}
+        if not isinstance(state, dict) or any(state.get(k) != v for k, v in expected.items()):
+            raise _CorruptCache("the file does not describe this graph")
+        table = state.get("table")
         entries = slots * (slots + 1) // 2
-        expected_size = _PREFIX.size + header_size + 2 * entries
-        if size != expected_size:
-            raise _CorruptCache(f"size {size} bytes, expected {expected_size}")
-        table = np.empty(entries, dtype="<i2")
-        if file.readinto(memoryview(table).cast("B")) != 2 * entries:
-            raise _CorruptCache("truncated table")
-        if zlib.crc32(memoryview(table).cast("B")) != header.get("crc32"):
-            raise _CorruptCache("checksum mismatch")
-        scale = header.get("scale")
+        if not isinstance(table, torch.Tensor) or table.dtype != torch.int16 or table.shape != (entries,):
+            raise _CorruptCache(f"the table is not int16 [{entries}]")
+        scale = state.get("scale")
         if not isinstance(scale, float) or not 0 < scale < 2 * _MAX_ERROR:
             raise _CorruptCache(f"bad resolution {scale!r}")
         self._scale = scale
-        return table
+        return table.numpy()
 
     def _save(self, table: np.ndarray) -> None:
-        """Write the table atomically (temporary file in the same folder, then rename)."""
+        """Write the table with the project's atomic, checksummed writer (:func:`gchgg.checkpoint.save`)."""
         path = self.cache_path
-        header = json.dumps(
-            {
-                "format": _FORMAT,
-                "key": path.stem.removeprefix("goalgraph-"),
-                "vertices": self.num_vertices,
-                "scale": self._scale,
-                "crc32": zlib.crc32(memoryview(table).cast("B")),
-                "params": self._params(),
-            }
-        ).encode()
-        temporary = None
+        state = {
+            "format": _FORMAT,
+            "key": path.stem.removeprefix("goalgraph-"),
+            "vertices": self.num_vertices,
+            "scale": self._scale,
+            "params": self._params(),
+            "table": torch.from_numpy(table),
+        }
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.NamedTemporaryFile(
-                dir=path.parent, prefix=".goalgraph-", suffix=".tmp", delete=False
-            ) as file:
-                temporary = file.name
-                file.write(_PREFIX.pack(_MAGIC, len(header), zlib.crc32(header)))
-                file.write(header)
-                file.write(memoryview(table).cast("B"))
-                file.flush()
-                os.fsync(file.fileno())
-            os.chmod(temporary, 0o644)  # readable like any cache file (temporary files are 0600)
-            os.replace(temporary, path)
+            checkpoint.save(state, path, mode=0o644)  # readable like any cache file
         except OSError as error:
             warnings.warn(
                 f"could not write graph cache file {path} ({error}); continuing without it",
                 RuntimeWarning,
                 stacklevel=3,
             )
-            if temporary is not None:
-                Path(temporary).unlink(missing_ok=True)
 
 
 @contextlib.contextmanager
