@@ -512,11 +512,22 @@ def startup_record(cfg: DictConfig) -> str:
     return f"versions: {packages}\nresolved config:\n{OmegaConf.to_yaml(cfg, resolve=True)}"
 
 
+def requeued() -> bool:
+    """Whether this process is a SLURM job the cluster requeued (pre-empted or timed out, then
+    started again): ``SLURM_RESTART_COUNT`` > 0. Such a job resumes its run by itself."""
+    try:
+        return int(os.environ.get("SLURM_RESTART_COUNT", "0") or 0) > 0
+    except ValueError:
+        return False
+
+
 def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
-    """Trains with ``cfg`` in ``run_dir`` (resuming from its checkpoint when ``cfg.resume``)."""
+    """Trains with ``cfg`` in ``run_dir``, resuming from its checkpoint when ``cfg.resume`` or when
+    the job was requeued by SLURM (:func:`requeued`)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     path = run_dir / CHECKPOINT
-    if path.exists() and not cfg.resume:
+    resume = bool(cfg.resume) or requeued()
+    if path.exists() and not resume:
         raise FileExistsError(
             f"run folder {run_dir} already holds a checkpoint: pass resume=true to continue that run, "
             f"or hydra.run.dir=<folder> (or another seed) for a new one"
@@ -524,7 +535,7 @@ def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
     trainer = Trainer(cfg, run_dir)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
     log.info(startup_record(cfg))
-    if cfg.resume and path.exists():
+    if resume and path.exists():
         trainer.load_state_dict(checkpoint.load(path))
         print(f"resumed {run_dir} after iteration {trainer.iteration}")
     return trainer.train()

@@ -138,6 +138,13 @@ def test_existing_run_needs_resume(tmp_path):
         train.run(cfg, tmp_path / "run")
 
 
+def test_a_requeued_slurm_job_resumes_by_itself(tmp_path, monkeypatch):
+    train.run(config(["env=reach", "algo=her", *tiny(tmp_path)]), tmp_path / "run")
+    monkeypatch.setenv("SLURM_RESTART_COUNT", "1")  # what SLURM sets in a requeued job
+    rows = train.run(config(["env=reach", "algo=her", *tiny(tmp_path, iterations=2)]), tmp_path / "run")
+    assert [row["iteration"] for row in rows] == [0, 1]
+
+
 def test_corrupt_checkpoint_is_an_error_that_says_so(tmp_path):
     run_dir = tmp_path / "run"
     train.run(config(["env=reach", "algo=her", *tiny(tmp_path)]), run_dir)
