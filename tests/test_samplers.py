@@ -456,13 +456,16 @@ def test_returned_batch_is_the_argmax_of_F_over_the_candidates(scale, metric_nam
 @pytest.fixture(scope="module")
 def recorded_push_new():
     """6,000 transitions drawn uniformly from the buffer of a push_new gchgg run after 7 iterations
-    (tests/data/push_new_buffer.pt: desired, task and achieved goals, EBP energy) and a push_new graph."""
+    (tests/data/push_new_buffer.csv: desired, task and achieved goals, EBP energy; 0.1 mm text) and a push_new graph."""
     import envs
 
-    stored = torch.load(Path(__file__).parent / "data" / "push_new_buffer.pt")
+    import numpy as np
+
+    rows = torch.from_numpy(np.loadtxt(Path(__file__).parent / "data" / "push_new_buffer.csv", delimiter=",")).float()
     geometry = envs.geometry("push_new")
     push_graph = GoalGraph(geometry.field, geometry.obstacles, n=(21, 21, 6), margin=0.02, cache_dir=None)
-    data = TensorDict({key: stored[key] for key in ("desired_goal", "task_goal", "achieved_goal", "energy")}, [6000])
+    data = TensorDict({"desired_goal": rows[:, 0:3], "task_goal": rows[:, 3:6], "achieved_goal": rows[:, 6:9],
+                       "energy": rows[:, 9]}, [len(rows)])
     return push_graph, data
 
 
