@@ -86,4 +86,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from report import run  # prints, and with --docs writes docs/benchmarks.md
+
+    run(main, __file__)

@@ -11,9 +11,14 @@ Prints, in one run:
   default ``draw_ahead=8``: averaged over the samples, as in training) and CHER greedy,
   each as a ratio to uniform (medians over interleaved rounds: the machine is shared and noisy);
 * how often the curriculum's nearest-neighbour shortlist could not prove a goal's nearest neighbour
-  (more pairs are then read), and that it always equals the all-pairs value.
+  (more pairs are then read), and that it always equals the all-pairs value;
+* in a plain ``TensorDictReplayBuffer`` of 200,000 synthetic transitions (goals and targets uniform
+  in push_new's goal field) with a Euclidean metric: ``sample()`` of 256 with K = 8 against uniform
+  sampling, at one torch thread and at torch's default thread count, interleaved in one run
+  (target: <= 5x uniform at both).
 
-Run: ``python benchmarks/samplers.py`` (``--episodes``, ``--rounds`` to change the sizes).
+Run: ``python benchmarks/samplers.py`` (``--episodes``, ``--rounds`` to change the sizes; ``--docs``
+writes the output into ``docs/benchmarks.md``).
 """
 
 from __future__ import annotations
@@ -49,7 +54,10 @@ def relabel(generator: torch.Generator) -> tuple[EpisodeEnergy, HindsightRelabel
     return EpisodeEnergy(), HindsightRelabel(envs.reward, k=K_HER, generator=generator)
 
 
-def memory() -> None:
+DEFAULT_THREADS = torch.get_num_threads()  # torch's own choice, before main() sets one thread
+
+
+def memory(graph: GoalGraph) -> None:
     env = envs.make("push_new", num_envs=2, seed=0)
     rollout = env.rollout(env_steps(env), break_when_any_done=False)
     rollout.set("task_goal", rollout["desired_goal"].clone())  # T*, stored by the trainer for eq. 15
@@ -64,7 +72,7 @@ def memory() -> None:
     print(f"memory: one stored transition = {per_transition:.0f} bytes "
           f"({', '.join(sorted(str(k) for k in transitions.keys(True, True)))})")
     # The curriculum sampler's per-row cache is sized to the storage's capacity at the first sample.
-    sampler = GraphCurriculumSampler(EuclideanMetric(), 8)
+    sampler = GraphCurriculumSampler(graph, 8)
     sampler.sample(storage, BATCH)
     cache = sampler.cache_bytes
     print(f"memory: 10,000 push_new episodes x {K_HER + 1} x T={steps} = {rows:,} transitions "
@@ -128,9 +136,13 @@ def fill(storage: LazyTensorStorage, episodes: int, steps: int, generator: torch
         writer.extend(her(energy(synthetic_episodes(min(250, episodes - start), steps, generator))))
 
 
-def speed(episodes: int, rounds: int) -> None:
+def push_new_graph() -> GoalGraph:
     geometry = envs.geometry("push_new")
-    graph = GoalGraph(geometry.field, geometry.obstacles, n=(31, 31, 11), margin=0.02)
+    return GoalGraph(geometry.field, geometry.obstacles, n=(31, 31, 11), margin=0.02)
+
+
+def speed(graph: GoalGraph, episodes: int, rounds: int) -> None:
+    geometry = envs.geometry("push_new")
     steps = geometry.episode_length
     generator = torch.Generator().manual_seed(0)
     storage = LazyTensorStorage(episodes * (K_HER + 1) * steps)
@@ -195,15 +207,60 @@ def shortlist_check(storage, graph, generator: torch.Generator, draws: int = 20)
           f"(more pairs read); {mismatched} of {total:,} differ from the all-pairs value")
 
 
+def plain_buffer_speed(rounds: int, size: int = 200_000) -> None:
+    """Euclidean curriculum vs uniform in a plain TorchRL buffer, at one and at the default threads."""
+    generator = torch.Generator().manual_seed(0)
+    center, half = (torch.tensor(v) for v in envs.geometry("push_new").field)
+
+    def goals() -> torch.Tensor:
+        return center + (torch.rand(size, 3, generator=generator) * 2 - 1) * half
+
+    data = TensorDict({
+        "observation": torch.randn(size, 25, generator=generator), "desired_goal": goals(), "target_goal": goals(),
+        "action": torch.rand(size, 3, generator=generator) * 2 - 1,
+        "next": {"observation": torch.randn(size, 25, generator=generator), "reward": -torch.ones(size, 1)},
+    }, [size])  # fmt: skip
+    storage = LazyTensorStorage(size)
+    samplers = {"uniform": RandomSampler(), "curriculum": GraphCurriculumSampler(EuclideanMetric(), 8, 1.0)}
+    buffers = {name: TensorDictReplayBuffer(storage=storage, sampler=sampler, batch_size=BATCH,
+                                            generator=torch.Generator().manual_seed(1))
+               for name, sampler in samplers.items()}  # fmt: skip
+    buffers["uniform"].extend(data)
+    thread_counts = sorted({1, DEFAULT_THREADS})
+    times = {(name, t): [] for name in buffers for t in thread_counts}
+    for _ in range(rounds):
+        for threads in thread_counts:
+            torch.set_num_threads(threads)
+            for name, buffer in buffers.items():
+                buffer.sample()  # a fresh draw-ahead pool starts in every measurement
+                start = time.perf_counter()
+                for _ in range(48):  # six pools of draw_ahead=8
+                    buffer.sample()
+                times[name, threads].append((time.perf_counter() - start) / 48)
+    torch.set_num_threads(1)
+    print(f"plain TensorDictReplayBuffer, {size:,} synthetic transitions, EuclideanMetric, sample() of {BATCH}, "
+          f"K=8, median of {rounds} interleaved rounds:")
+    for threads in thread_counts:
+        uniform = statistics.median(times["uniform", threads])
+        curriculum = statistics.median(times["curriculum", threads])
+        label = "default" if threads == DEFAULT_THREADS else "one"
+        print(f"  {threads} thread(s) ({label}): uniform {uniform * 1e3:.3f} ms, curriculum {curriculum * 1e3:.3f} ms "
+              f"= {curriculum / uniform:.1f} x uniform (target <= 5)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=5000)
     parser.add_argument("--rounds", type=int, default=7)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    memory()
-    speed(args.episodes, args.rounds)
+    graph = push_new_graph()
+    memory(graph)
+    speed(graph, args.episodes, args.rounds)
+    plain_buffer_speed(args.rounds)
 
 
 if __name__ == "__main__":
-    main()
+    from report import run  # prints, and with --docs writes docs/benchmarks.md
+
+    run(main, __file__)

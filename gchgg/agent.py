@@ -10,15 +10,15 @@ The agent follows the reference implementation's defaults (``REFERENCE.md``, "Tr
 - critic target ``y = r + γ·clip(Q'(s'‖g, π'(s'‖g)), −1/(1−γ), 0)`` with no done mask (the tasks only
   time out), actor loss ``−mean Q(s‖g, π(s‖g)) + 1.0·mean(π²)``; both losses are computed from the
   same parameters and both networks step together (Adam, 1e-3);
-- target networks ``θ' ← 0.95·θ' + 0.05·θ`` once every 20 updates (:class:`torchrl.objectives.SoftUpdate`);
+- target networks ``θ' ← 0.95·θ' + 0.05·θ`` once every 20 updates;
 - exploration (eq. 22): with probability 0.3 a uniform random action, otherwise ``π + N(0, 0.2²)``,
   clipped to [−1, 1]; every draw comes from a ``torch.Generator`` the caller passes in.
 
-:class:`HindsightDDPGLoss` is a :class:`torchrl.objectives.DDPGLoss` usable on its own in any TorchRL
-pipeline; :class:`DDPGAgent` adds the optimisers, the target-update schedule, exploration, the
-value function HGG needs and a complete ``state_dict``. Its :meth:`DDPGAgent.update` reads the
-batch's tensors once and runs the loss's tensor path, which costs about as much as the same update
-written in plain torch (``benchmarks/agent_update.py``).
+:class:`HindsightDDPGLoss` holds the losses and the target networks (a plain module: TorchRL's
+``DDPGLoss`` has neither the clipped bootstrap nor the action penalty); :class:`DDPGAgent` adds the
+optimisers, the target-update schedule, exploration, the value function HGG needs and a complete
+``state_dict``. Its :meth:`DDPGAgent.update` reads the batch's tensors once and runs the loss's
+tensor path (``benchmarks/agent_update.py`` times it).
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import MLP
-from torchrl.objectives import DDPGLoss, SoftUpdate
 
 from gchgg.validation import check_number
 
@@ -228,7 +227,7 @@ def make_ddpg_networks(
     Returns:
         ``(actor, critic)``: the actor reads ``[observation_key, goal_key]`` and writes
         ``action_key``; the critic reads ``[observation_key, goal_key, action_key]`` and writes
-        ``"state_action_value"`` (``[..., 1]``), the key :class:`~torchrl.objectives.DDPGLoss` expects.
+        ``"state_action_value"`` (``[..., 1]``), TorchRL's name for it.
 
     Examples:
         >>> actor, critic = make_ddpg_networks(5, 3, 2, hidden=(16,))
@@ -251,25 +250,34 @@ def make_ddpg_networks(
     )
 
 
-class HindsightDDPGLoss(DDPGLoss):
-    """:class:`~torchrl.objectives.DDPGLoss` with the HER / HGG critic target and an action penalty.
+class HindsightDDPGLoss(nn.Module):
+    """The HER / HGG DDPG losses and target networks, as a plain :class:`torch.nn.Module`.
 
     - critic: ``mean((Q(s‖g, a) − y)²)`` with ``y = r + γ·clip(Q'(s'‖g, π'(s'‖g)), −1/(1−γ), 0)``.
       There is no done mask (goal-conditioned episodes only time out, so every next state is
       bootstrapped) and the next state's goal is the transition's own goal (as written by the HER
       relabel transform); no ``("next", goal)`` entry is read.
-    - actor: ``−mean Q(s‖g, π(s‖g)) + action_l2·mean(π²)``, with the critic's parameters detached.
+    - actor: ``−mean Q(s‖g, π(s‖g)) + action_l2·mean(π²)``; the critic's weights get no gradient
+      from it, so one ``backward`` of the sum gives each network its own gradient.
+    - target networks ``θ' ← polyak·θ' + (1 − polyak)·θ`` by :meth:`update_targets`.
 
-    Both the actor and the critic have target copies (``delay_actor=delay_value=True``), to be
-    updated with :class:`~torchrl.objectives.SoftUpdate`. Parameters without gradient (the
-    normalisers' statistics) are shared between the online and the target networks rather than
-    copied, so updating a normaliser updates all four networks.
+    It is not a :class:`torchrl.objectives.LossModule`: TorchRL's ``DDPGLoss`` has neither the
+    clipped bootstrap nor the action penalty, and the normalisers' running statistics must be
+    shared, not copied, by the target networks. It follows the loss-module conventions that a
+    pipeline relies on: :meth:`forward` maps a batch TensorDict to a TensorDict of ``loss_*``
+    entries (sum them and call ``backward``), and the networks are ordinary submodules.
+
+    The target networks are copies of the online ones whose *parameters* are copied and whose
+    *buffers* (the normalisers' statistics) are the online tensors themselves, so updating a
+    normaliser updates all four networks, and a relabelled goal is always normalised with the
+    current statistics.
 
     Args:
-        actor_network: deterministic actor, e.g. from :func:`make_ddpg_networks`; its ``in_keys`` are
-            ``[observation_key, goal_key]`` and its single ``out_key`` the action.
-        value_network: critic reading ``[observation_key, goal_key, action_key]`` and writing
-            ``"state_action_value"``.
+        actor_network: deterministic actor from :func:`make_ddpg_networks`: it reads
+            ``[observation_key, goal_key]`` and writes the action key; its ``module`` is called as
+            ``module(observation, goal)``.
+        value_network: critic reading ``[observation_key, goal_key, action_key]``; its ``module``
+            is called as ``module(observation, goal, action) -> Q [..., 1]``.
 
     Keyword Args:
         gamma: discount factor, in (0, 1).
@@ -284,7 +292,6 @@ class HindsightDDPGLoss(DDPGLoss):
     Examples:
         >>> actor, critic = make_ddpg_networks(5, 3, 2, hidden=(16,))
         >>> loss = HindsightDDPGLoss(actor, critic)
-        >>> target_updater = SoftUpdate(loss, eps=0.95)  # target <- 0.95 target + 0.05 online
         >>> batch = TensorDict({
         ...     "observation": torch.randn(8, 5), "desired_goal": torch.randn(8, 3),
         ...     "action": torch.rand(8, 2) * 2 - 1,
@@ -292,12 +299,10 @@ class HindsightDDPGLoss(DDPGLoss):
         ... }, [8])
         >>> out = loss(batch)
         >>> (out["loss_actor"] + out["loss_value"]).backward()
-        >>> target_updater.step()
+        >>> loss.update_targets(polyak=0.95)  # target <- 0.95 target + 0.05 online
         >>> sorted(out.keys())
         ['loss_actor', 'loss_value', 'pred_value', 'target_value']
     """
-
-    out_keys = ["loss_actor", "loss_value", "pred_value", "target_value"]
 
     def __init__(
         self,
@@ -308,6 +313,7 @@ class HindsightDDPGLoss(DDPGLoss):
         action_l2: float = 1.0,
         clip_return: bool = True,
     ) -> None:
+        super().__init__()
         check_number("gamma", gamma, low=0, high=1, low_open=True, high_open=True)
         check_number("action_l2", action_l2, low=0)
         if len(actor_network.in_keys) != 2 or len(actor_network.out_keys) != 1:
@@ -315,78 +321,21 @@ class HindsightDDPGLoss(DDPGLoss):
                 "actor_network must read [observation_key, goal_key] and write one action key, got "
                 f"in_keys={actor_network.in_keys}, out_keys={actor_network.out_keys}"
             )
-        super().__init__(actor_network, value_network, delay_actor=True, delay_value=True, loss_function="l2")
         self.gamma = float(gamma)
         self.action_l2 = float(action_l2)
         self.clip_return = bool(clip_return)
         self.observation_key, self.goal_key = actor_network.in_keys
         self.action_key = actor_network.out_keys[0]
-        # Share (not copy) everything that has no gradient, i.e. the normalisers' statistics.
-        for source, target in (
-            (self.actor_network_params, self._modules["target_actor_network_params"]),
-            (self.value_network_params, self._modules["target_value_network_params"]),
-        ):
-            for key, value in source.items(include_nested=True, leaves_only=True):
-                if not isinstance(value, nn.Parameter):
-                    target.set(key, value.data)
-        self._bind_networks()
+        self.reward_key = ("next", "reward")
+        self.actor = actor_network.module
+        self.critic = value_network.module
+        self.target_actor = _target_copy(self.actor)
+        self.target_critic = _target_copy(self.critic)
 
     @property
     def return_range(self) -> tuple[float, float]:
         """``(−1/(1−γ), 0)``: the range of returns with rewards in {−1, 0}."""
         return -1.0 / (1.0 - self.gamma), 0.0
-
-    def _bind_networks(self) -> None:
-        """Plain-module views of the online, target and detached networks, sharing the parameters.
-
-        The views are stateful copies of the networks whose tensors *are* the loss's parameter
-        tensors (target parameters, detached critic parameters), so calling them costs no parameter
-        swapping; optimiser steps, :class:`SoftUpdate` and ``load_state_dict`` all write in place.
-        """
-        views = {
-            "actor": self.actor_network.module,
-            "critic": self.value_network.module,
-            "target_actor": self._bound_copy(self.actor_network, self._modules["target_actor_network_params"]),
-            "target_critic": self._bound_copy(self.value_network, self._modules["target_value_network_params"]),
-            "detached_critic": self._bound_copy(self.value_network, self.value_network_params.detach()),
-        }
-        # kept out of ``_modules``: they hold no state of their own
-        self.__dict__["_views"] = views
-
-    @staticmethod
-    def _bound_copy(network: TensorDictModule, params: TensorDictBase) -> nn.Module:
-        view = copy.deepcopy(network)
-        params.to_module(view)
-        # to_module wraps the tensors in new Parameters sharing their storage; these views are never
-        # trained through, so their weights must not collect gradients
-        view.requires_grad_(False)
-        return view.module
-
-    def _apply(self, fn, *args, **kwargs):
-        out = super()._apply(fn, *args, **kwargs)
-        if "_views" in self.__dict__:  # tensors were moved or cast: bind the views again
-            self._bind_networks()
-        return out
-
-    @property
-    def actor(self) -> nn.Module:
-        """The online actor as a plain module: ``actor(observation, goal) -> action``."""
-        return self._views["actor"]
-
-    @property
-    def critic(self) -> nn.Module:
-        """The online critic as a plain module: ``critic(observation, goal, action) -> Q [..., 1]``."""
-        return self._views["critic"]
-
-    @property
-    def target_actor(self) -> nn.Module:
-        """The target actor; its weights are ``target_actor_network_params``."""
-        return self._views["target_actor"]
-
-    @property
-    def target_critic(self) -> nn.Module:
-        """The target critic; its weights are ``target_value_network_params``."""
-        return self._views["target_critic"]
 
     def losses(
         self,
@@ -409,18 +358,17 @@ class HindsightDDPGLoss(DDPGLoss):
             ``(loss_actor, loss_value, pred_value [B, 1], target_value [B, 1])``; the last two are
             detached.
         """
-        loss_value, pred_value, target_value = self._critic_loss(observation, goal, action, next_observation, reward)
-        return self._actor_loss(observation, goal), loss_value, pred_value, target_value
+        loss_value, pred_value, target_value = self.critic_loss(observation, goal, action, next_observation, reward)
+        return self.actor_loss(observation, goal), loss_value, pred_value, target_value
 
-    def _critic_loss(self, observation, goal, action, next_observation, reward):
-        views = self._views
+    def critic_loss(self, observation, goal, action, next_observation, reward):
+        """``(mean((Q − y)²), Q [B, 1], y [B, 1])``, the last two detached."""
         with torch.no_grad():
-            next_action = views["target_actor"](next_observation, goal)
-            next_value = views["target_critic"](next_observation, goal, next_action)
+            next_value = self.target_critic(next_observation, goal, self.target_actor(next_observation, goal))
             if self.clip_return:
                 next_value = next_value.clamp(*self.return_range)
             target_value = reward + self.gamma * next_value
-        pred_value = views["critic"](observation, goal, action)
+        pred_value = self.critic(observation, goal, action)
         if pred_value.shape != target_value.shape:
             raise ValueError(
                 f"the reward must be [B, 1] like the critic's output {tuple(pred_value.shape)}, "
@@ -429,12 +377,27 @@ class HindsightDDPGLoss(DDPGLoss):
         loss_value = (pred_value - target_value).square().mean()
         return loss_value, pred_value.detach(), target_value
 
-    def _actor_loss(self, observation, goal):
-        policy_action = self._views["actor"](observation, goal)
-        loss_actor = -self._views["detached_critic"](observation, goal, policy_action).mean()
+    def actor_loss(self, observation, goal):
+        """``−mean Q(s‖g, π(s‖g)) + action_l2·mean(π²)``; no gradient reaches the critic's weights."""
+        policy_action = self.actor(observation, goal)
+        critic_weights = list(self.critic.parameters())
+        for weight in critic_weights:  # recorded as constants: gradient flows to the action only
+            weight.requires_grad_(False)
+        try:
+            loss_actor = -self.critic(observation, goal, policy_action).mean()
+        finally:
+            for weight in critic_weights:
+                weight.requires_grad_(True)
         if self.action_l2:
             loss_actor = loss_actor + self.action_l2 * policy_action.square().mean()
         return loss_actor
+
+    @torch.no_grad()
+    def update_targets(self, polyak: float) -> None:
+        """``θ' ← polyak·θ' + (1 − polyak)·θ`` for both target networks (in place)."""
+        for online, target in ((self.actor, self.target_actor), (self.critic, self.target_critic)):
+            for weight, target_weight in zip(online.parameters(), target.parameters(), strict=True):
+                target_weight.lerp_(weight, 1 - polyak)
 
     def inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, ...]:
         """The tensors :meth:`losses` takes, read from a batch: observation, goal, action, next observation, reward."""
@@ -443,7 +406,7 @@ class HindsightDDPGLoss(DDPGLoss):
             tensordict.get(self.goal_key),
             tensordict.get(self.action_key),
             tensordict.get(("next", self.observation_key)),
-            tensordict.get(("next", self.tensor_keys.reward)),
+            tensordict.get(self.reward_key),
         )
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
@@ -459,14 +422,27 @@ class HindsightDDPGLoss(DDPGLoss):
             batch_size=[],
         )
 
-    def loss_value(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
-        """Critic loss of a batch and ``{"pred_value", "target_value"}`` (``[B]`` each)."""
-        loss, pred_value, target_value = self._critic_loss(*self.inputs(tensordict))
-        return loss, {"pred_value": pred_value.squeeze(-1), "target_value": target_value.squeeze(-1)}
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # checkpoints written while this loss subclassed torchrl's DDPGLoss name the networks
+        # "<name>_network_params.module.*"; read them under today's names
+        for old, new in _LEGACY_NAMES.items():
+            for key in [k for k in state_dict if k.startswith(prefix + old)]:
+                state_dict[prefix + new + key[len(prefix + old):]] = state_dict.pop(key)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
-    def loss_actor(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
-        """Actor loss of a batch (the critic's weights detached) and ``{}``."""
-        return self._actor_loss(tensordict.get(self.observation_key), tensordict.get(self.goal_key)), {}
+
+_LEGACY_NAMES = {
+    "target_actor_network_params.module.": "target_actor.",
+    "target_value_network_params.module.": "target_critic.",
+    "actor_network_params.module.": "actor.",
+    "value_network_params.module.": "critic.",
+}
+
+
+def _target_copy(network: nn.Module) -> nn.Module:
+    """A copy of ``network`` with its own parameters (no gradient) and the *same* buffer tensors."""
+    target = copy.deepcopy(network, memo={id(buffer): buffer for buffer in network.buffers()})
+    return target.requires_grad_(False)
 
 
 @dataclass(frozen=True)
@@ -573,12 +549,9 @@ class DDPGAgent:
         self.loss_module = HindsightDDPGLoss(
             actor, critic, gamma=config.gamma, action_l2=config.action_l2, clip_return=config.clip_return
         )
-        self.target_updater = SoftUpdate(self.loss_module, eps=config.polyak)
         # fused Adam: one kernel per step instead of several per parameter
-        actor_params = [p for p in self.loss_module.actor_network_params.values(True, True) if p.requires_grad]
-        critic_params = [p for p in self.loss_module.value_network_params.values(True, True) if p.requires_grad]
-        self.actor_optimizer = torch.optim.Adam(actor_params, lr=config.actor_lr, fused=True)
-        self.critic_optimizer = torch.optim.Adam(critic_params, lr=config.critic_lr, fused=True)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
         self.observation_normalizer: RunningNormalizer = self.loss_module.actor.observation_normalizer
         self.goal_normalizer: RunningNormalizer = self.loss_module.actor.goal_normalizer
         self.num_updates = 0
@@ -734,7 +707,7 @@ class DDPGAgent:
         self.critic_optimizer.step()
         self.num_updates += 1
         if self.num_updates % self.target_update_every == 0:
-            self.target_updater.step()
+            self.loss_module.update_targets(self.polyak)
         return dict(zip(("loss_actor", "loss_value", "pred_value", "target_value"), values))
 
     # -- checkpointing --------------------------------------------------------------------------

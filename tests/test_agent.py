@@ -10,7 +10,6 @@ import math
 import pytest
 import torch
 from tensordict import TensorDict
-from torchrl.objectives import SoftUpdate
 
 from gchgg.agent import DDPGAgent, HindsightDDPGLoss, RunningNormalizer, make_ddpg_networks
 
@@ -88,8 +87,8 @@ def test_critic_target_is_clipped_bootstrap_without_done_mask(next_q, clip_retur
     out = loss(batch)
     torch.testing.assert_close(out["target_value"], expected_target.mean())
     torch.testing.assert_close(out["loss_value"], (-2.0 - expected_target).square().mean())
-    _, info = loss.loss_value(batch)
-    torch.testing.assert_close(info["target_value"], expected_target.squeeze(-1))
+    _, _, target_value = loss.critic_loss(*loss.inputs(batch))
+    torch.testing.assert_close(target_value, expected_target)
 
 
 def test_critic_target_uses_target_networks_and_the_transition_goal():
@@ -141,8 +140,8 @@ def test_actor_loss_does_not_train_the_critic_and_critic_loss_does_not_train_the
 # -- target updates ------------------------------------------------------------------------------
 
 
-def _weights(params) -> dict:
-    return {k: v.clone() for k, v in params.items(True, True) if k[-1] in ("weight", "bias")}
+def _weights(network) -> dict:
+    return {k: v.detach().clone() for k, v in network.named_parameters()}
 
 
 def test_targets_start_equal_and_move_by_polyak_only_every_20th_update():
@@ -150,13 +149,11 @@ def test_targets_start_equal_and_move_by_polyak_only_every_20th_update():
     loss = agent.loss_module
 
     def online():
-        critic = {("v", *k): v for k, v in _weights(loss.value_network_params).items()}
-        return _weights(loss.actor_network_params) | critic
+        critic = {"v." + k: v for k, v in _weights(loss.critic).items()}
+        return _weights(loss.actor) | critic
 
     def target():
-        return _weights(loss.target_actor_network_params) | {
-            ("v", *k): v for k, v in _weights(loss.target_value_network_params).items()
-        }
+        return _weights(loss.target_actor) | {"v." + k: v for k, v in _weights(loss.target_critic).items()}
 
     before = target()
     for key, value in online().items():
@@ -322,11 +319,27 @@ def test_state_dict_round_trip_gives_identical_subsequent_updates():
     batch = make_batch()
     assert torch.equal(agent.value(batch["observation"], batch["desired_goal"]),
                        resumed.value(batch["observation"], batch["desired_goal"]))  # fmt: skip
-    # the target networks of the resumed agent are its own target parameters (not stale copies)
+    # the resumed target networks share the online normalisers' statistics (loaded in place)
     loss = resumed.loss_module
-    assert loss.target_critic.mlp[0].weight.data_ptr() == loss.target_value_network_params[
-        "module", "mlp", "0", "weight"
-    ].data_ptr()
+    assert loss.target_critic.observation_normalizer.mean.data_ptr() == loss.actor.observation_normalizer.mean.data_ptr()
+
+
+def test_agent_loads_checkpoints_written_while_the_loss_subclassed_ddpg_loss():
+    agent = make_agent(seed=0)
+    for step in range(21):  # past one target update: targets differ from the online networks
+        agent.update(make_batch(seed=step))
+    state = agent.state_dict()
+    old_prefixes = {"actor.": "actor_network_params.module.", "critic.": "value_network_params.module.",
+                    "target_actor.": "target_actor_network_params.module.",
+                    "target_critic.": "target_value_network_params.module."}  # fmt: skip
+    old_networks = {}
+    for key, value in state["networks"].items():
+        prefix = next(p for p in sorted(old_prefixes, key=len, reverse=True) if key.startswith(p))
+        old_networks[old_prefixes[prefix] + key[len(prefix):]] = value
+    resumed = make_agent(seed=5)
+    resumed.load_state_dict(state | {"networks": old_networks})
+    for (key, a), b in zip(all_parameters(agent).items(), all_parameters(resumed).values()):
+        assert torch.equal(a, b), key
 
 
 def test_load_state_dict_rejects_other_settings_and_incomplete_states():
@@ -383,10 +396,9 @@ def test_bad_shapes_are_reported():
         agent.update(make_batch().set(("next", "reward"), torch.zeros(16, 2)))
 
 
-def test_loss_module_is_a_standalone_torchrl_loss():
+def test_loss_module_works_on_its_own_on_a_tensordict_batch():
     actor, critic = make_ddpg_networks(OBS, GOAL, ACT, hidden=(16,))
     loss = HindsightDDPGLoss(actor, critic, gamma=0.9, action_l2=0.5)
-    SoftUpdate(loss, eps=0.95)
     batch = make_batch()
     out = loss(batch)
     loss_actor, loss_value, _, target = loss.losses(*loss.inputs(batch))
@@ -394,6 +406,13 @@ def test_loss_module_is_a_standalone_torchrl_loss():
     torch.testing.assert_close(out["loss_value"], loss_value)
     assert loss.return_range == pytest.approx((-10.0, 0.0))
     assert (target <= 0.0).all()  # rewards in {-1, 0}, bootstrap clipped to <= 0
+    sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+    assert all(p.grad is not None for p in actor.parameters()) and all(p.grad is not None for p in critic.parameters())
+    assert all(p.grad is None for p in loss.target_actor.parameters())
+    assert all(p.requires_grad for p in critic.parameters())  # the actor loss left the critic trainable
+    # the loss's networks are the modules it was given; its targets are its own parameters
+    assert loss.actor is actor.module and loss.critic is critic.module
+    assert {id(p) for p in loss.parameters()} >= {id(p) for p in actor.parameters()}
 
 
 # -- learning ------------------------------------------------------------------------------------

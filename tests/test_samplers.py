@@ -186,6 +186,20 @@ def test_shortlist_nearest_neighbours_are_exact(graph, neighbours, block):
     assert stats["rescored"] < goals.shape[0] * goals.shape[1]
 
 
+@pytest.mark.parametrize(("scale", "shift"), [(1.0, 0.0), (0.01, 1000.0), (100.0, -5.0)])
+def test_euclidean_nearest_neighbours_are_exact_at_any_scale_with_ties_and_duplicates(scale, shift):
+    g = torch.Generator().manual_seed(0)
+    goals = torch.rand(6, 256, 3, generator=g) * scale + shift
+    goals[:, 200:] = torch.round((goals[:, 200:] - shift) / scale * 20) * scale / 20 + shift  # ties on a grid
+    goals[:, 10:20] = goals[:, 30:40]  # duplicates
+    exact = brute_force_nearest(goals, EuclideanMetric())
+    for neighbours in ("auto", 1, 3):
+        stats: dict = {}
+        fast = nearest_neighbour_distances(goals, EuclideanMetric(), neighbours, stats=stats)
+        assert torch.equal(fast, exact), neighbours
+        assert stats["rescored"] > 0  # the unproven goals' paths ran
+
+
 def test_off_graph_goals_never_make_nan(graph):
     data = goal_transitions(400)
     data["desired_goal"][::3] = torch.tensor([0.0, 0.0, 0.0])  # inside the wall: inf to everything

@@ -34,7 +34,10 @@ def read_field(storage: Storage, key: NestedKey, index: torch.Tensor | None, sam
         values = storage._storage.get(key, None)
         if values is None:
             _missing(storage._storage, key, sampler)
-        return values[:n] if index is None else values[index]
+        if index is None:
+            return values[:n]
+        index = torch.as_tensor(index)  # index_select: several times faster than values[index] for [A, K, B] indices
+        return values.index_select(0, index.reshape(-1)).view(*index.shape, *values.shape[1:])
     data = storage.get(torch.arange(n) if index is None else index)  # generic storages: gathers rows
     if not is_tensor_collection(data) or data.get(key, None) is None:
         _missing(data, key, sampler)

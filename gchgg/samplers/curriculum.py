@@ -29,6 +29,7 @@ __all__ = ["SCALES", "GraphCurriculumSampler", "curriculum_objective"]
 SCALES = ("raw", "standardized")
 
 _TO_TARGET = POINT_SIZE  # column of the goal-to-target distance in the per-row cache (after the point)
+_GOAL = _TO_TARGET + 1  # first of the diversity goal's 3 columns, cached for a diversity metric without a lattice
 
 
 @dataclass
@@ -116,11 +117,11 @@ class GraphCurriculumSampler(Sampler):
     field's centre, its squared norm and its vertex index; see :meth:`NearestNeighbours.points`) and
     its goal-to-target distance are computed once, at the first ``sample`` after the row is written
     (rows the buffer reports through ``extend``/``add``/``mark_update``, and rows new to the
-    storage), and kept in a float32 ``[n, 7]`` tensor (28 bytes per stored row); ``sample`` then
-    reads neither goals nor targets from the storage (except the goals for a diversity metric that
-    is not a graph) and snaps no goal. Rows overwritten behind the sampler's back (TorchRL's
-    ``buffer[index] = ...``, or another buffer writing into a full shared storage) keep stale
-    entries until reported with ``sampler.mark_update(index)``.
+    storage), and kept in a float32 ``[n, 7]`` tensor (28 bytes per stored row; ``[n, 10]`` with
+    the goal itself for a diversity metric without a lattice, which reads goals); ``sample`` then
+    reads neither goals nor targets from the storage and snaps no goal. Rows overwritten behind
+    the sampler's back (TorchRL's ``buffer[index] = ...``, or another buffer writing into a full
+    shared storage) keep stale entries until reported with ``sampler.mark_update(index)``.
 
     Cost per ``sample`` (amortised over ``draw_ahead``): an EBP or uniform draw of K·B rows (O(1)
     each), one read of K·B cached rows, a sort of K·B goals, K·B·96·5 multiply-adds and about ten
@@ -148,8 +149,9 @@ class GraphCurriculumSampler(Sampler):
         energy_key: stored EBP energy; ``None`` (default) draws candidates uniformly.
         diversity_metric: metric of F_div if it differs from ``metric`` (the original code used
             Euclidean nearest neighbours). Default: ``metric``.
-        neighbours: shortlist length (≥ 1) of the nearest-neighbour search, or ``None`` for all pairs.
-            Default 3.
+        neighbours: shortlist length (≥ 1) of the nearest-neighbour search, ``None`` for all pairs, or
+            ``"auto"`` (default: 3 for a graph metric, 1 for a metric without a lattice; see
+            :class:`NearestNeighbours`). The batches chosen do not depend on it.
         unreachable_distance: metres an unreachable goal counts in F_prox; ``None`` (default) as
             described above.
         draw_ahead: samples whose candidates are drawn and scored together (≥ 1; see "Drawing
@@ -189,7 +191,7 @@ class GraphCurriculumSampler(Sampler):
         scale: str = "raw",
         energy_key: NestedKey | None = None,
         diversity_metric=None,
-        neighbours: int | None = 3,
+        neighbours: int | str | None = "auto",
         unreachable_distance: float | None = None,
         draw_ahead: int = 8,
     ) -> None:
@@ -197,8 +199,6 @@ class GraphCurriculumSampler(Sampler):
             if m is not None and not isinstance(m, Metric):
                 raise TypeError(f"{name} must be a gchgg.graph.Metric (distance(a, b) and lattice: GoalGraph, EuclideanMetric), got {m!r}")
         check_number("num_candidates", num_candidates, integer=True, low=1)
-        if neighbours is not None:
-            check_number("neighbours (or None: all pairs)", neighbours, integer=True, low=1)
         if unreachable_distance is not None:
             check_number("unreachable_distance (or None)", unreachable_distance, low=0)
         check_choice("scale", scale, SCALES)
@@ -216,6 +216,7 @@ class GraphCurriculumSampler(Sampler):
         self.draw_ahead = draw_ahead
         self._energy = EnergySampler(energy_key) if energy_key is not None else None
         self._nearest = NearestNeighbours(self.diversity_metric, neighbours)
+        self._width = _GOAL + (0 if self._nearest.snaps else 3)  # per-row cache columns
         # Per stored row: goal vertex and goal-to-target distance, valid for rows < _known not in _pending.
         self._rows: torch.Tensor | None = None
         self._known = 0
@@ -225,7 +226,8 @@ class GraphCurriculumSampler(Sampler):
 
     @property
     def cache_bytes(self) -> int:
-        """Bytes of the per-row cache (28 per stored row, sized to the storage's capacity at the first sample)."""
+        """Bytes of the per-row cache (28 per stored row, 40 for a diversity metric without a lattice; sized to
+        the storage's capacity at the first sample)."""
         return 0 if self._rows is None else self._rows.numel() * self._rows.element_size()
 
     def stop_curriculum(self) -> None:
@@ -281,10 +283,8 @@ class GraphCurriculumSampler(Sampler):
             index = self._energy.draw(storage, a * k, b).view(a, k, b)
         else:
             index = torch.randint(n, (a, k, b), generator=rng)
-        rows = self._stored_rows(storage, index, n)  # [A, K, B, 7]: shortlist point (6), goal-to-target distance
-        goals = None
-        if not self._nearest.snaps:
-            goals = read_field(storage, self.diversity_key, index, self).reshape(a * k, b, -1)
+        rows = self._stored_rows(storage, index, n)  # [A, K, B, 7 (+3)]: shortlist point, goal-to-target distance (goal)
+        goals = None if self._nearest.snaps else rows[..., _GOAL:].reshape(a * k, b, 3)
         nearest = self._nearest.from_points(rows[..., :_TO_TARGET].reshape(a * k, b, _TO_TARGET), goals)
         diversity = nearest.nan_to_num(posinf=0.0).sum(-1).view(a, k)  # eq. 19: no finite neighbour adds nothing
         proximity = -self._finite(rows[..., _TO_TARGET]).sum(-1)  # eq. 15 with C = 0, [A, K]
@@ -318,7 +318,7 @@ class GraphCurriculumSampler(Sampler):
         :meth:`NearestNeighbours.points`) and its goal-to-target distance, computed once per written row."""
         if self._rows is None or n != self._known or self._pending:
             self._refresh(storage, n)
-        return self._rows.index_select(0, index.view(-1)).view(*index.shape, _TO_TARGET + 1)
+        return self._rows.index_select(0, index.view(-1)).view(*index.shape, self._width)
 
     def _refresh(self, storage: Storage, n: int) -> None:
         """Compute the cache entries of rows written since the last sample (and of rows new to the storage)."""
@@ -326,7 +326,7 @@ class GraphCurriculumSampler(Sampler):
         fresh = [index[index < min(n, self._known)] for index in self._pending]
         if cache is None or len(cache) < n:
             size = max(n, int(getattr(storage, "max_size", n) or n))
-            grown = torch.empty(size, _TO_TARGET + 1)
+            grown = torch.empty(size, self._width)
             if cache is not None:
                 grown[: self._known] = cache[: self._known]
             cache, self._known = grown, 0
@@ -342,6 +342,8 @@ class GraphCurriculumSampler(Sampler):
         diverse = goals if self.diversity_key == self.goal_key else read_field(storage, self.diversity_key, fresh, self)
         cache[fresh, :_TO_TARGET] = self._nearest.points(diverse)
         cache[fresh, _TO_TARGET] = check_distances(self.metric.distance(goals, targets), "metric")
+        if not self._nearest.snaps:  # the goals themselves: the metric reads them
+            cache[fresh, _GOAL:] = diverse.to(cache.dtype)
 
     def _forget(self, index) -> None:
         """Mark (re)written rows: their cache entries are recomputed at the next sample, and candidates

@@ -19,14 +19,15 @@ from gchgg.validation import check_number
 __all__ = ["POINT_SIZE", "NearestNeighbours", "check_distances", "nearest_neighbour_distances"]
 
 POINT_SIZE = 6  # values per shortlist point: (x, y, z, |p|², 1, id)
-_BOUND_TOLERANCE = 1e-3  # metres: slack on the Euclidean lower bound (float32 rounding of |a|² + |b|² − 2a·b)
+_GRAPH_TOLERANCE = 1e-3  # metres: slack on a graph's straight-line bounds, besides half its table's resolution
+_RELATIVE_TOLERANCE = 1e-5  # slack on straight-line bounds between goals, per metre of their coordinates (>= 1 m)
 _LEVEL_SLACK = 2  # levels added to every squared distance so float32 rounding never makes one negative
 _INT32_MAX = 2**31 - 1
 _SWAP = torch.tensor([0, 1, 2, 4, 3])  # point columns (x, y, z, |p|², 1) -> (x, y, z, 1, |p|²)
 
 
 def nearest_neighbour_distances(
-    goals: torch.Tensor, metric, neighbours: int | None = 3, *, block: int = 32, stats: dict | None = None
+    goals: torch.Tensor, metric, neighbours: int | str | None = "auto", *, block: int = 32, stats: dict | None = None
 ) -> torch.Tensor:
     """Metric distance from each goal to its nearest other goal of the same batch: min_{j≠i} d(g_i, g_j).
 
@@ -35,7 +36,7 @@ def nearest_neighbour_distances(
     Args:
         goals: ``[K, B, 3]``: K batches of B goals.
         metric: object with ``distance(a, b)``.
-        neighbours: shortlist length, ``None`` for all pairs.
+        neighbours: shortlist length, ``"auto"`` or ``None`` for all pairs (see :class:`NearestNeighbours`).
         block: goals per block of the shortlist search (see :class:`NearestNeighbours`).
         stats: if given, ``stats["rescored"]`` is set to the number of goals the shortlist did not
             prove (for which the goals within the Euclidean bound were read too).
@@ -74,12 +75,21 @@ class NearestNeighbours:
 
     Args:
         metric: object with ``distance(a, b)`` on goals ``[..., 3]``.
-        neighbours: shortlist length ≥ 1, or ``None`` to score all pairs with the metric.
+        neighbours: shortlist length ≥ 1, ``None`` to score all pairs with the metric, or ``"auto"``
+            (default): 3 for a metric with a lattice (graph distances reorder the straight-line
+            nearest goals), 1 for one without (the straight line already orders them). The result
+            is the same for every length; only the number of metric reads differs.
         block: goals per block (≥ 2); batches of at most ``3 · block`` goals are one block.
     """
 
-    def __init__(self, metric, neighbours: int | None = 3, block: int = 32) -> None:
+    def __init__(self, metric, neighbours: int | str | None = "auto", block: int = 32, span: int = 1) -> None:
         check_number("block", block, integer=True, low=2)
+        check_number("span", span, integer=True, low=1)
+        self.span = span
+        if neighbours == "auto":
+            neighbours = 3 if metric.lattice is not None else 1
+        elif neighbours is not None:
+            check_number('neighbours (or None: all pairs, or "auto")', neighbours, integer=True, low=1)
         self.metric = metric
         self.neighbours = neighbours
         self.block = block
@@ -90,6 +100,7 @@ class NearestNeighbours:
         self._lattice: torch.Tensor | None = None  # graph vertices relative to the origin
         self._park: torch.Tensor | None = None  # where off-graph goals are put
         self._reach = 0.0  # graph: the largest |p| of any point (the parking distance)
+        self._scale = 0.0  # no graph: the largest absolute coordinate of any goal made a point
         self._scratch: dict[Any, Any] = {}
 
     @property
@@ -118,6 +129,8 @@ class NearestNeighbours:
                 flat = goals.reshape(-1, 3)
                 self._origin = flat.mean(0) if len(flat) else torch.zeros(3)
                 self._axis = int(flat.std(0).argmax()) if len(flat) > 1 else 0
+            if goals.numel():
+                self._scale = max(self._scale, float(goals.abs().amax()))
             position = goals - self._origin
             ident = torch.zeros(goals.shape[:-1])
         norm = position.square().sum(-1, keepdim=True)
@@ -178,7 +191,8 @@ class NearestNeighbours:
             candidates = vertex.gather(1, cols.reshape(k, b * m)).view(k, b, m)
             nearest = self._lookup(vertex.unsqueeze(-1), candidates).amin(-1)  # [K, B]
         else:
-            nearest = pair(torch.arange(b).view(1, b, 1), cols, torch.arange(k).view(k, 1, 1)).amin(-1)
+            others = goals.gather(1, cols.reshape(k, b * m, 1).expand(k, b * m, goals.shape[-1])).view(k, b, m, -1)
+            nearest = check_distances(self.metric.distance(goals.unsqueeze(2), others), "diversity metric").amin(-1)
         # Proven where the shortlist beats every goal outside it (a distance of 0, a duplicate goal,
         # always does). For the others, only goals nearer in a straight line than the best distance
         # so far can be nearer: read those (usually a handful) from the metric too.
@@ -188,16 +202,61 @@ class NearestNeighbours:
         if stats is not None:
             stats["rescored"] = int(unproven.sum())
         if bool(unproven.any()):
-            kk, ii = unproven.nonzero(as_tuple=True)
-            best = nearest[kk, ii]
-            planar = points[..., :3].transpose(1, 2)  # [K, 3, B]: coordinate planes, for a fast sum
-            straight = (planar[kk] - points[kk, ii, :3].unsqueeze(-1)).square_().sum(1).sqrt_()  # [U, B]
-            straight.sub_(self._tolerance()).scatter_(1, ii.unsqueeze(1), math.inf)  # not itself
-            uu, jj = (straight < best.unsqueeze(-1)).nonzero(as_tuple=True)
-            if len(uu):
-                best = best.scatter_reduce(0, uu, pair(ii[uu], jj, kk[uu]), reduce="amin")
-                nearest[kk, ii] = best
+            nearest, unproven = self._rescore_nearby(points, unproven, nearest, pair)
+        if bool(unproven.any()):
+            nearest = self._rescore(points, unproven, nearest, pair)
         return torch.empty_like(nearest).scatter_(1, order, nearest)
+
+    def _rescore_nearby(self, points: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair):
+        """First try for the unproven goals: the goals within ``reach = 2·span·block`` sorted positions
+        either side (where the nearest one usually is, just outside the window). Returns ``nearest``
+        with those reads and the goals still unproven (some goal beyond that range may be nearer)."""
+        k, b = unproven.shape
+        reach = 2 * self.span * self.block
+        kk, ii = unproven.nonzero(as_tuple=True)  # [U]
+        cols = (ii.unsqueeze(1) + torch.arange(-reach, reach + 1)).clamp_(0, b - 1)  # [U, W] sorted positions
+        at = cols.add((kk * b).unsqueeze(1)).view(-1)
+        own = kk * b + ii
+        straight = None
+        for plane in points[..., :3].permute(2, 0, 1).reshape(3, k * b):  # a difference per coordinate plane is fast
+            term = plane.index_select(0, at).view(cols.shape).sub_(plane.index_select(0, own).unsqueeze(1)).square_()
+            straight = term if straight is None else straight.add_(term)
+        straight.sqrt_().sub_(self._tolerance()).masked_fill_(cols == ii.unsqueeze(1), math.inf)  # not itself
+        best = nearest[kk, ii]
+        uu, ww = (straight < best.unsqueeze(-1)).nonzero(as_tuple=True)
+        if len(uu):
+            best = best.scatter_reduce(0, uu, pair(ii[uu], cols[uu, ww], kk[uu]), reduce="amin")
+            nearest = nearest.index_put((kk, ii), best)
+        # goals beyond the range are at least the gap along the axis away
+        axis = points[..., self._axis]
+        ends = torch.cat([axis.new_full((k, 1), -math.inf), axis, axis.new_full((k, 1), math.inf)], 1)
+        x = axis[kk, ii]
+        gap = torch.minimum(x - ends[kk, (ii - reach).clamp(min=0)], ends[kk, (ii + reach + 2).clamp(max=b + 1)] - x)
+        still = torch.zeros_like(unproven)
+        still[kk, ii] = best > gap - self._tolerance()
+        return nearest, still
+
+    def _rescore(self, points: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair) -> torch.Tensor:
+        """``nearest [K, B]`` with the unproven goals' entries made exact: the metric is read for every goal
+        nearer in a straight line than the best distance found. The unproven goals of each batch are
+        gathered into ``[K, M]`` rows (M: the most any batch has) and measured against all B goals."""
+        k, b = unproven.shape
+        count = unproven.sum(1)
+        width = int(count.max())
+        rows = torch.argsort(unproven.logical_not().to(torch.uint8), dim=1, stable=True)[:, :width]  # unproven first
+        valid = torch.arange(width) < count.unsqueeze(1)  # [K, M]: padding rows are proven goals, left alone
+        planes = points[..., :3].transpose(1, 2).contiguous()  # [K, 3, B]: a difference per plane is fast
+        own = planes.gather(2, rows.unsqueeze(1).expand(k, 3, width)).unsqueeze(-1)  # [K, 3, M, 1]
+        planes = planes.unsqueeze(2)  # [K, 3, 1, B]
+        straight = (own[:, 0] - planes[:, 0]).square_()
+        straight.add_((own[:, 1] - planes[:, 1]).square_()).add_((own[:, 2] - planes[:, 2]).square_()).sqrt_()
+        straight.sub_(self._tolerance()).scatter_(2, rows.unsqueeze(-1), math.inf)  # [K, M, B], not itself
+        best = nearest.gather(1, rows)  # [K, M]
+        kk, mm, jj = ((straight < best.unsqueeze(-1)) & valid.unsqueeze(-1)).nonzero(as_tuple=True)
+        if not len(kk):
+            return nearest
+        best = best.view(-1).scatter_reduce(0, kk * width + mm, pair(rows[kk, mm], jj, kk), reduce="amin")
+        return nearest.scatter(1, rows, best.view(k, width))
 
     def _pairs(self, vertex: torch.Tensor, goals: torch.Tensor | None):
         """``pair(rows, cols, batch)``: metric distance of goal ``rows`` to goals ``cols`` (indices within
@@ -221,9 +280,13 @@ class NearestNeighbours:
         return self._graph.pair_distance(i, j)  # unchecked: the indices come from the graph
 
     def _tolerance(self) -> float:
-        """Metres the straight-line bound is lowered by: float32 rounding, and for a graph half its
-        table's resolution (its distances are rounded to it)."""
-        return _BOUND_TOLERANCE + (0.5 * float(self._graph.resolution) if self._snap else 0.0)
+        """Metres the straight-line bounds are lowered by. For a graph 1 mm plus half its table's
+        resolution (its distances are rounded to it); otherwise float32 rounding of the goals'
+        coordinates (relative error ~6e-8) with a wide margin: 1e-5 per metre of the largest
+        coordinate seen (at least 1 m). The squared-distance levels carry their own slack."""
+        if self._snap:
+            return _GRAPH_TOLERANCE + 0.5 * float(self._graph.resolution)
+        return _RELATIVE_TOLERANCE * max(1.0, self._scale)
 
     def _shortlist(self, points: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor]:
         """For points sorted along the axis ``[K, B, 6]``: each one's m nearest others in its window, as
@@ -282,9 +345,9 @@ class NearestNeighbours:
         cached = self._scratch.get(("layout", b, m))
         if cached is not None:
             return cached
-        size = self.block
-        if b > 3 * size and size > m:
-            pad, blocks, width = size, -(-b // size), 3 * size
+        size, span = self.block, self.span
+        if b > (2 * span + 1) * size and size > m:
+            pad, blocks, width = span * size, -(-b // size), (2 * span + 1) * size
         else:  # one window holds every goal
             size, pad, blocks, width = b, 0, 1, b
         block = torch.arange(blocks).view(blocks, 1, 1)

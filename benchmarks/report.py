@@ -1,0 +1,111 @@
+"""Runs a benchmark's ``main`` and, with ``--docs``, writes what it printed into ``docs/benchmarks.md``.
+
+Every benchmark script ends with ``report.run(main, __file__)``. With ``--docs`` on its command line
+(removed before the script parses its own arguments) the figures it printed replace that script's
+section of ``docs/benchmarks.md``, under a line that records the command, the commit, the date,
+the machine and its load average when the run started: these machines are shared, so a figure is
+only as quiet as the machine was. Other sections are left as they are.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import io
+import os
+import platform
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs" / "benchmarks.md"
+HEADER = """# Benchmarks
+
+Written by the scripts in `benchmarks/` (`python benchmarks/<name>.py --docs`); do not edit by hand.
+Each section is the script's output from its last run with `--docs`, under the commit, date,
+machine and load average it ran with. Speed is printed as ratios measured in the same run: the
+machines are shared and noisy, so absolute times vary between runs by up to 2x.
+"""
+
+
+class _Tee(io.TextIOBase):
+    def __init__(self, *streams) -> None:
+        self.streams = streams
+
+    def write(self, text: str) -> int:
+        for stream in self.streams:
+            stream.write(text)
+        return len(text)
+
+    def flush(self) -> None:
+        for stream in self.streams:
+            stream.flush()
+
+
+def run(main: Callable[[], None], script: str) -> None:
+    """``main()``; with ``--docs`` in ``sys.argv`` also write its output into ``docs/benchmarks.md``."""
+    write = "--docs" in sys.argv
+    if write:
+        sys.argv.remove("--docs")
+    started = _context(script)
+    captured = io.StringIO()
+    with contextlib.redirect_stdout(_Tee(sys.stdout, captured)):
+        main()
+    if write:
+        write_section(Path(script).name, started, captured.getvalue())
+        print(f"wrote the {Path(script).name} section of {DOCS.relative_to(ROOT)}", file=sys.stderr)
+
+
+def _context(script: str) -> str:
+    """The line above a section: command, commit, date, machine, load."""
+    args = " ".join(a for a in sys.argv[1:] if a != "--docs")
+    command = f"python benchmarks/{Path(script).name}" + (f" {args}" if args else "")
+    commit = _git("rev-parse", "--short", "HEAD") or "unknown commit"
+    if _git("status", "--porcelain", "--untracked-files=no"):
+        commit += " (with uncommitted changes)"
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
+    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    machine = f"{os.cpu_count()} CPUs ({_cpu_model()}), Python {platform.python_version()}"
+    return f"`{command}` at {commit}, {date}; {machine}; load average {load} at the start."
+
+
+def _git(*args: str) -> str:
+    try:
+        out = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return out.stdout.strip()
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def write_section(name: str, context: str, output: str) -> None:
+    """Replace (or add, in name order) the ``name`` section of ``docs/benchmarks.md``."""
+    sections = _read_sections()
+    sections[name] = f"{context}\n\n```text\n{output.rstrip()}\n```\n"
+    body = "".join(f"\n## {key}\n\n{sections[key]}" for key in sorted(sections))
+    DOCS.write_text(HEADER + body)
+
+
+def _read_sections() -> dict[str, str]:
+    if not DOCS.is_file():
+        return {}
+    sections: dict[str, str] = {}
+    current = None
+    for line in DOCS.read_text().splitlines(keepends=True):
+        if line.startswith("## "):
+            current = line[3:].strip()
+            sections[current] = ""
+        elif current is not None:
+            sections[current] += line
+    return {key: text.strip("\n") + "\n" for key, text in sections.items()}
