@@ -15,7 +15,8 @@ of the paper). The table (Markdown) gives per group: runs, iterations to the fir
 ≥ 0.5 and ≥ 0.9 (median [IQR] over runs; a run that never got there counts as never, and the
 table says how many did), success at chosen iterations and at the end, a run's last iteration,
 the iteration HGG's stop condition switched it to target goals (``stopped``), the mean
-``diversity_decided`` fraction where it was logged, and wall-clock hours.
+``diversity_decided`` fraction while the curriculum was active (before that stop), and wall-clock
+hours.
 """
 
 from __future__ import annotations
@@ -188,7 +189,7 @@ def _fmt(stats: tuple[float, float, float], digits: int | None = None) -> str:
 def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150), column: str = "success_rate") -> str:
     """A Markdown table per group: runs, iterations to ≥ 0.5 / ≥ 0.9, success at ``at`` and at the end, ..."""
     head = ["task", "group", "runs", "first ≥ 0.5", "first ≥ 0.9", *(f"{column} at {i}" for i in at)]
-    head += [f"final {column}", "last iteration", "HGG stop", "diversity decided", "hours"]
+    head += [f"final {column}", "last iteration", "HGG stop", "diversity decided (before the stop)", "hours"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for (task, label), runs in sorted(groups.items()):
         reached = {t: [first_at(r, t, column) for r in runs] for t in (0.5, 0.9)}
@@ -203,11 +204,20 @@ def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100
         cells.append(_fmt(iqr([r.rows[-1]["iteration"] for r in runs])))
         stops = [first_at(r, 1.0, "stopped") for r in runs if "d_g" in r.rows[-1]]  # runs with a goal generator
         cells.append(f"{_fmt(iqr(stops))}" if stops else "—")
-        decided = [np.nanmean(r.column("diversity_decided")) for r in runs if "diversity_decided" in r.rows[-1]]
+        decided = [_while_curriculum(r, "diversity_decided") for r in runs if "diversity_decided" in r.rows[-1]]
         cells.append(f"{np.mean(decided):.2f}" if decided else "—")
         cells.append(_fmt(iqr([r.hours for r in runs]), 2))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _while_curriculum(run: Run, column: str) -> float:
+    """Mean of ``column`` over the iterations before HGG's stop (``stopped`` 0; all rows without it):
+    afterwards the curriculum samples one candidate and the column is 0 by construction."""
+    values = run.column(column)
+    if "stopped" in run.rows[-1]:
+        values = values[run.column("stopped") == 0]
+    return float(np.nanmean(values)) if len(values) else math.nan
 
 
 def plot(groups: dict[tuple[str, str], list[Run]], out: str | Path, column: str = "success_rate") -> None:

@@ -53,7 +53,7 @@ def test_medians_quartiles_and_first_iterations(sweep):
     assert "| 3 | 2 [1.5, never] (2/3) | never [never, never] (1/3) | 0.20 [0.10, 0.35] | 0.70 [0.40, 0.82] |" in row
     assert row.endswith("| — | — | 0.40 [0.35, 0.40] |")  # no HGG stop logged; hours: 4, 4, 3 rows of 360 s
     gchgg = next(line for line in text.splitlines() if "gchgg, curriculum.scale=raw" in line)
-    assert "| 2 [2, 2] | 0.40 |" in gchgg  # HGG stop at iteration 2, mean diversity_decided
+    assert "| 2 [2, 2] | 0.30 |" in gchgg  # HGG stop at iteration 2; diversity_decided averaged before it
 
 
 def test_csv_files_group_by_name_and_the_cli_writes_figure_and_table(tmp_path, capsys):
