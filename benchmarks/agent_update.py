@@ -1,7 +1,7 @@
 """DDPG update cost: :class:`gchgg.agent.DDPGAgent` vs the same update written in plain torch.
 
 Prints seconds per update (batch 256, push_new sizes: obs 25, goal 3, action 3) for the agent —
-which reads a TensorDict batch and runs TorchRL's modules and target updater — and for
+which reads a TensorDict batch and runs its loss module and target update — and for
 :class:`BareDDPG`, the same networks and the same math with plain tensors and no TensorDict, plus
 their ratio. The two are timed in alternating rounds of one run and the ratio is the median of the
 per-round ratios, so it holds on a shared machine. :class:`BareDDPG` is also the "bare DDPG update"
