@@ -91,7 +91,7 @@ class KukaEnv(EnvBase):
 
     def _set_seed(self, seed: int | None) -> None:
         for task, task_seed in zip(self._tasks, task_seeds(seed, self.num_envs)):
-            task._random = np.random.RandomState(task_seed)
+            task.random.seed(task_seed)  # in place: the same stream as RandomState(task_seed)
 
     # -- reset ------------------------------------------------------------------------------------
 
@@ -170,14 +170,14 @@ class KukaEnv(EnvBase):
 
     def random_state(self) -> list[tuple]:
         """The N tasks' random states (goal and object draws), for checkpoints."""
-        return [task._random.get_state() for task in self._tasks]
+        return [task.random.get_state() for task in self._tasks]
 
     def set_random_state(self, states: list[tuple]) -> None:
         """Restore :meth:`random_state`'s output, so the next resets draw what they would have drawn."""
         if len(states) != self.num_envs:
             raise ValueError(f"random state holds {len(states)} tasks' states, this env has num_envs={self.num_envs}")
         for task, state in zip(self._tasks, states):
-            task._random.set_state(state)
+            task.random.set_state(state)
 
     @property
     def physics(self) -> list[kuka.Physics]:

@@ -30,6 +30,9 @@ def check_sampleable(storage: Storage, sampler: object) -> int:
 def read_field(storage: Storage, key: NestedKey, index: torch.Tensor | None, sampler: object) -> torch.Tensor:
     """``storage[index][key]`` without gathering whole rows (all ``len(storage)`` rows when ``index`` is None)."""
     n = len(storage)
+    # TorchRL's TensorStorage has no public way to read one field without gathering every key of the
+    # rows: its underlying TensorDict (``_storage``) is read directly, the one private TorchRL
+    # attribute the project touches (besides ``Sampler._rng``, which TorchRL sets on every sampler).
     if isinstance(storage, TensorStorage) and is_tensor_collection(storage._storage):
         values = storage._storage.get(key, None)
         if values is None:
