@@ -44,7 +44,8 @@ def load(name: str, seed=None, **options):
     Args:
         name: one of :data:`TASKS`; anything else is a ``ValueError`` listing them.
         seed: seed of the task's random state (goals and object positions).
-        **options: ``threshold`` (success distance in metres, default 0.05) and
+        **options: ``threshold`` (success distance in metres, default 0.05), ``start``
+            (``"original"`` or, for the pick tasks, ``"above"``: :func:`envs.geometry.with_start`) and
             ``environment_kwargs`` (passed to ``control.Environment``).
 
     >>> env = load("reach", seed=0)

@@ -8,7 +8,7 @@ Numbers follow the authors' original KUKA environments (see ``REFERENCE.md``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 
@@ -40,8 +40,9 @@ class TaskGeometry:
         episode_length: control steps per episode (T).
         action_dim: 3 (gripper held closed) or 4 (last entry opens/closes the gripper).
         table_height: z of the table top in metres, ``None`` without a table.
-        gripper_start: where the grip site (between the finger pads) starts each episode, metres.
-            In ``reach`` the target range is this point +- 0.15 m.
+        gripper_start: where the grip site (between the finger pads) starts each episode, metres
+            (the tool pointing down). In ``reach`` the target range is this point +- 0.15 m.
+        finger_start: each finger's opening at the start, metres (0: closed, 0.0425: open).
     """
 
     name: str
@@ -53,6 +54,7 @@ class TaskGeometry:
     action_dim: int
     table_height: float | None
     gripper_start: tuple[float, float, float] = (0.75, 0.0, 1.2)
+    finger_start: float = 0.0
 
     def below_table(self, position):
         """Boolean mask ``[...]`` of object positions ``[..., 3]`` (torch or numpy) whose centre is below
@@ -100,7 +102,12 @@ GEOMETRY: dict[str, TaskGeometry] = {
         episode_length=100,
         action_dim=4,
         table_height=1.0,
-        gripper_start=(0.75, 0.1, 1.2),
+        # The authors' start (REFERENCE.md): their joint angles (0.356, 0.942, 0, -1.53, 0, 0.628, 0.336)
+        # put the tip at the cube's start centre, the fingers half open around it; this arm's joints
+        # are solved for the same tip (the same angles on this arm, whose wrist-to-grip is 3.65 cm
+        # shorter, would put the grip 3.7 cm higher, the fingers above the cube).
+        gripper_start=(0.745, 0.203, 1.019),
+        finger_start=0.026,
     ),
     "pick_obstacle": TaskGeometry(
         name="pick_obstacle",
@@ -112,9 +119,30 @@ GEOMETRY: dict[str, TaskGeometry] = {
         episode_length=100,
         action_dim=4,
         table_height=1.0,
-        gripper_start=(0.75, 0.1, 1.2),
+        # The authors' start: angles (0.356, 0.921, 0, -1.49, 0, 0.733, 0.336), the tip 2.6 cm above
+        # the cube's start centre, the fingers closed.
+        gripper_start=(0.748, 0.204, 1.041),
+        finger_start=0.0,
     ),
 }
+
+# The pick tasks' start before December 2026: the grip 18.5 cm above and ~10 cm beside the cube's
+# start, fingers closed. Kept for the learnability comparison (``start="above"``).
+ABOVE_START = {"pick_no_obstacle": (0.75, 0.1, 1.2), "pick_obstacle": (0.75, 0.1, 1.2)}
+STARTS = ("original", "above")
+
+
+def with_start(geom: TaskGeometry, start: str = "original") -> TaskGeometry:
+    """``geom`` with start ``"original"`` (the authors' start state, the default) or ``"above"`` (the pick
+    tasks' start before December 2026: grip at ``ABOVE_START``, fingers closed)."""
+    if start == "original":
+        return geom
+    if start == "above" and geom.name in ABOVE_START:
+        return replace(geom, gripper_start=ABOVE_START[geom.name], finger_start=0.0)
+    raise ValueError(
+        f"start={start!r} is not a start of task {geom.name!r}: every task has 'original'"
+        + (", and 'above'" if geom.name in ABOVE_START else "; 'above' exists for the pick tasks")
+    )
 
 TASKS: tuple[str, ...] = tuple(GEOMETRY)
 

@@ -33,8 +33,8 @@ _SHOULDER_HEIGHT = 0.3405  # metres: joint 2 above the base
 _LINK = 0.3995  # metres: joint 2 to joint 4, and joint 4 to joint 6
 _WRIST_TO_GRIP = 0.1265 + 0.08  # metres: joint 6 to the flange, flange to the grip site
 
-# Start pose per task (arm joints, hand position, hand quaternion), solved once per process.
-_START_POSE: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+# Start pose per task and start point (arm joints, hand position, hand quaternion), solved once per process.
+_START_POSE: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
 
 class Physics(mujoco.Physics):
@@ -182,7 +182,7 @@ class KukaTask(base.Task):
 
     def _start_pose(self, physics: Physics):
         """Arm joints, hand position and quaternion that put the grip at ``geometry.gripper_start``."""
-        name = self.geometry.name
+        name = (self.geometry.name, self.geometry.gripper_start)
         if name not in _START_POSE:
             base = physics.model.body("base").pos
             physics.data.qpos[physics._arm_qpos] = _start_joints(base, np.asarray(self.geometry.gripper_start))
@@ -192,9 +192,11 @@ class KukaTask(base.Task):
         return _START_POSE[name]
 
     def initialize_episode(self, physics: Physics) -> None:
-        """Puts the arm in its start pose, draws the goal and (where there is one) the object's position."""
+        """Puts the arm in its start pose and the fingers at their start opening, draws the goal and (where
+        there is one) the object's position."""
         qpos, hand_pos, hand_quat = self._start_pose(physics)
         physics.data.qpos[physics._arm_qpos] = qpos
+        physics.data.qpos[physics._finger_qpos] = self.geometry.finger_start
         physics.data.qvel[:] = 0.0
         physics.set_mocap(hand_pos, hand_quat)  # dm_control resets the mocap to the model default
         if self.has_object:

@@ -69,6 +69,12 @@ def pick_and_place(observation: np.ndarray, goal: np.ndarray, over_wall: bool = 
     target = cube + np.array([0.0, 0.0, _APPROACH_HEIGHT])
     descend = above & (open_enough | at_cube)
     target = np.where(descend[:, None], cube, target)
+    # Starting beside the cube at its height (the pick tasks' original start): rise straight up first,
+    # so that the fingers do not drag the cube sideways.
+    low = grip[:, 2] < cube[:, 2] + _APPROACH_HEIGHT - 0.01
+    rise = low & ~above & ~held
+    straight_up = np.column_stack([grip[:, 0], grip[:, 1], cube[:, 2] + _APPROACH_HEIGHT])
+    target = np.where(rise[:, None], straight_up, target)
     carry = goal.copy()
     if over_wall:
         before_wall = cube[:, 1] > _BEHIND_WALL

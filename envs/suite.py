@@ -6,14 +6,14 @@ from dm_control.rl import control
 from dm_control.utils import containers
 
 from envs import common, kuka
-from envs.geometry import geometry
+from envs.geometry import geometry, with_start
 
 SUITE = containers.TaggedTasks()
 
-_OPTIONS = ("threshold", "environment_kwargs")
+_OPTIONS = ("threshold", "start", "environment_kwargs")
 
 
-def _build(name: str, seed=None, threshold: float = kuka.DEFAULT_THRESHOLD,
+def _build(name: str, seed=None, threshold: float = kuka.DEFAULT_THRESHOLD, start: str = "original",
            environment_kwargs: dict | None = None) -> control.Environment:
     """The dm_control environment of task ``name``: its MJCF, a :class:`kuka.KukaTask`, T control steps.
 
@@ -21,9 +21,11 @@ def _build(name: str, seed=None, threshold: float = kuka.DEFAULT_THRESHOLD,
         name: one of :data:`envs.TASKS`.
         seed: seed of the task's random state (goals, object positions).
         threshold: success distance in metres.
+        start: ``"original"`` (the authors' start state) or, for the pick tasks, ``"above"`` (their
+            start before December 2026); see :func:`envs.geometry.with_start`.
         environment_kwargs: extra keyword arguments of ``control.Environment``.
     """
-    geom = geometry(name)
+    geom = with_start(geometry(name), start)
     physics = kuka.Physics.from_xml_string(common.read_model(f"{name}.xml"), common.ASSETS)
     task = kuka.KukaTask(geom, threshold=threshold, random=seed)
     # Half a step short of T, so that float rounding can neither add nor drop a step.

@@ -36,7 +36,9 @@ class KukaEnv(EnvBase):
         name: one of :data:`envs.TASKS`.
         num_envs: number of simulations N, >= 1.
         seed: seed for the tasks' random states (see :func:`envs.task_seeds`).
-        **options: ``threshold`` (success distance in metres, default 0.05).
+        **options: ``threshold`` (success distance in metres, default 0.05) and ``start``
+            (``"original"``, the authors' start state, or ``"above"`` for the pick tasks' start
+            before December 2026; see :func:`envs.geometry.with_start`).
 
     >>> import torch
     >>> env = KukaEnv("reach", num_envs=2, seed=0)
@@ -47,17 +49,17 @@ class KukaEnv(EnvBase):
     """
 
     def __init__(self, name: str, num_envs: int = 1, seed: int | None = None, **options):
-        geom = geometry(name)
+        geometry(name)  # a clear error listing the tasks for an unknown name
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         suite.check_options(options)
         super().__init__(batch_size=torch.Size([num_envs]), device="cpu")
         self.task_name = name
-        self.geometry = geom
         self.num_envs = num_envs
         dm_envs = [suite.SUITE[name](**options) for _ in range(num_envs)]
         self._physics = [env.physics for env in dm_envs]
         self._tasks = [env.task for env in dm_envs]
+        self.geometry = self._tasks[0].geometry  # with the start the options chose
         self._n_sub_steps = dm_envs[0]._n_sub_steps
         task = self._tasks[0]
         self.threshold = task.threshold

@@ -76,7 +76,7 @@ def _policy_from_checkpoint(folder: Path) -> dict:
 
 def evaluate_policy(
     actor, task: str, episodes: int = 100, seed: int = 0, threshold: float = 0.05, num_envs: int = 100,
-    noise_std: float = 0.0,
+    noise_std: float = 0.0, start: str = "original",
 ) -> Evaluation:
     """Deterministic episodes of ``actor(observation, goal)`` on ``task``'s target goals.
 
@@ -84,6 +84,7 @@ def evaluate_policy(
     (:func:`envs.episode_seeds` gives each episode's task seed). With ``noise_std`` the policy sees
     the observed object position (and object-relative position; the grip in reach) with
     N(0, noise_std²) noise, drawn from a generator seeded ``seed``; success is that of the true state.
+    ``start`` is the task's start state (``envs.make``'s option; the run's ``env.start``).
     """
     import torch
     from torchrl.envs import TransformedEnv
@@ -98,7 +99,7 @@ def evaluate_policy(
     batch = 0
     while done < episodes:
         n = min(num_envs, episodes - done)
-        env = envs.make(task, num_envs=n, seed=seed + batch, threshold=threshold)
+        env = envs.make(task, num_envs=n, seed=seed + batch, threshold=threshold, start=start)
         if noise_std:
             env = TransformedEnv(env, make_observation_noise(envs.observation_layout(task), env.has_object, noise_std, generator))
         with torch.inference_mode():
@@ -111,7 +112,8 @@ def evaluate_policy(
 
 
 def record(actor, task: str, path: str | Path, *, episodes: int = 1, seed: int = 0, camera: str = "front",
-           size: tuple[int, int] = (240, 320), every: int = 1, fps: int = 20, threshold: float = 0.05) -> int:
+           size: tuple[int, int] = (240, 320), every: int = 1, fps: int = 20, threshold: float = 0.05,
+           start: str = "original") -> int:
     """Renders ``episodes`` deterministic episodes of ``actor`` on ``task`` into a video file
     (``.mp4`` or ``.gif``; every ``every``-th control step at ``fps``). Returns the number of frames.
 
@@ -133,7 +135,7 @@ def record(actor, task: str, path: str | Path, *, episodes: int = 1, seed: int =
         import imageio.v3 as iio
     except ImportError:
         raise ImportError('recording needs imageio (and imageio-ffmpeg for MP4): pip install -e ".[video]"') from None
-    env = envs.make(task, num_envs=episodes, seed=seed, threshold=threshold)
+    env = envs.make(task, num_envs=episodes, seed=seed, threshold=threshold, start=start)
     height, width = size
 
     def frame() -> list[np.ndarray]:
@@ -184,7 +186,8 @@ def main(argv: list[str] | None = None) -> None:
     saved = load_policy_file(args.run_dir)
     actor = load_policy(saved["policy"])
     task, threshold = saved["task"], saved["threshold"]
-    result = evaluate_policy(actor, task, args.episodes, args.seed, threshold, noise_std=args.noise)
+    start = saved.get("config", {}).get("env", {}).get("start", "original")  # runs before Dec 2026: "original"
+    result = evaluate_policy(actor, task, args.episodes, args.seed, threshold, noise_std=args.noise, start=start)
     print(
         f"{task}: success rate {result.success_rate:.3f}, mean final distance {result.final_distance:.4f} m "
         f"over {result.episodes} episodes (policy of iteration {saved['iteration'] - 1}, seed {args.seed}, "
@@ -192,7 +195,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     if args.video:
         frames = record(actor, task, args.video, episodes=args.video_episodes, seed=args.seed, camera=args.camera,
-                        threshold=threshold)
+                        threshold=threshold, start=start)
         print(f"wrote {args.video} ({frames} frames, camera {args.camera})")
 
 

@@ -132,8 +132,9 @@ class Trainer:
         self.geometry = envs.geometry(name)
         self.steps = self.geometry.episode_length
         self.chunk_size = cfg.train.episodes // cfg.train.chunks
-        self.env = envs.make(name, num_envs=self.chunk_size, seed=cfg.seed, threshold=cfg.env.threshold)
-        self.eval_env = envs.make(name, num_envs=cfg.eval.episodes, seed=int(seeds[3]), threshold=cfg.env.threshold)
+        options = {"threshold": cfg.env.threshold, "start": cfg.env.get("start", "original")}
+        self.env = envs.make(name, num_envs=self.chunk_size, seed=cfg.seed, **options)
+        self.eval_env = envs.make(name, num_envs=cfg.eval.episodes, seed=int(seeds[3]), **options)
         # Observation noise (a camera's error): the policy sees noisy positions; rewards, energy and the
         # goal pool read the true achieved goal the noise transform keeps.
         self.achieved_key, self.noise_generators = "achieved_goal", {}

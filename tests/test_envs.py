@@ -302,8 +302,38 @@ def test_start_pose_puts_the_grip_at_its_start_pointing_down(name):
     assert ((qpos > limits[:, 0] + 0.2) & (qpos < limits[:, 1] - 0.2)).all()
 
 
+# The authors' tips (REFERENCE.md, "Start states of the original tasks") and finger openings.
+ORIGINAL_STARTS = {
+    "push_new": ((0.674, 0.160, 0.974), 0.0),
+    "pick_no_obstacle": ((0.745, 0.203, 1.019), 0.026),
+    "pick_obstacle": ((0.748, 0.204, 1.041), 0.0),
+}
+
+
+@pytest.mark.parametrize("name", sorted(ORIGINAL_STARTS))
+def test_tasks_start_at_the_authors_tip_with_their_finger_opening(name):
+    tip, fingers = ORIGINAL_STARTS[name]
+    env = envs.make(name, num_envs=2, seed=0)
+    env.reset()
+    for physics in env.physics:
+        np.testing.assert_allclose(physics.grip_position(), tip, atol=1e-6)
+        np.testing.assert_allclose(physics.finger_positions(), [fingers, fingers], atol=1e-9)
+
+
+def test_the_pick_tasks_keep_their_former_start_as_an_option():
+    env = envs.load("pick_obstacle", seed=0, start="above")
+    env.reset()
+    np.testing.assert_allclose(env.physics.grip_position(), (0.75, 0.1, 1.2), atol=1e-6)
+    assert envs.make("pick_no_obstacle", num_envs=1, seed=0, start="above").geometry.finger_start == 0.0
+    with pytest.raises(ValueError, match="'above' exists for the pick tasks"):
+        envs.load("push_new", start="above")
+    with pytest.raises(ValueError, match="start='low'"):
+        envs.make("pick_obstacle", start="low")
+
+
 def test_a_grasped_cube_stays_in_the_gripper_at_full_speed():
-    env = envs.make("pick_no_obstacle", num_envs=8, seed=1)
+    # from above the cube (start="above"): no start with a finger in the cube's place, so every env grasps
+    env = envs.make("pick_no_obstacle", num_envs=8, seed=1, start="above")
     td = env.reset()
     policy = scripted.policy("pick_no_obstacle")
     for _ in range(30):  # grasp, lift to 1.25 m
