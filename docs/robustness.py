@@ -37,8 +37,10 @@ def main() -> None:
         saved = load_policy_file(run_dir)
         actor = load_policy(saved["policy"])
         trained = saved["config"].get("noise", {}).get("object_std", 0.0)
+        start = saved["config"].get("env", {}).get("start", "original")
         rates = [
-            evaluate_policy(actor, saved["task"], args.episodes, args.seed, saved["threshold"], noise_std=s).success_rate
+            evaluate_policy(actor, saved["task"], args.episodes, args.seed, saved["threshold"], noise_std=s,
+                            start=start).success_rate
             for s in args.sigmas
         ]
         print(f"| {label} | {saved['task']} | {trained:g} | {saved['iteration'] - 1} | "
