@@ -63,7 +63,7 @@ def _context(script: str) -> str:
     args = " ".join(a for a in sys.argv[1:] if a != "--docs")
     command = f"python benchmarks/{Path(script).name}" + (f" {args}" if args else "")
     commit = _git("rev-parse", "--short", "HEAD") or "unknown commit"
-    if _git("status", "--porcelain", "--untracked-files=no"):
+    if _git("status", "--porcelain", "--untracked-files=no", "--", ".", ":!docs/benchmarks.md"):
         commit += " (with uncommitted changes)"
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
