@@ -66,7 +66,8 @@ class GraphCurriculumSampler(Sampler):
 
     Scale. ``scale="raw"`` is the formula above untouched: both sums grow with B, and their spreads
     across the candidates, not λ's nominal value, decide which term wins (on push_new the F_prox
-    spread is ~40x the F_div spread, so any λ above ~0.03 picks the best-proximity candidate).
+    spread dwarfs the F_div spread: on a recorded buffer, diversity decides 28 %, 3 % and 0 % of the
+    choices at λ = 0.1, 1 and 10; ``tests/test_samplers.py -k standardized`` prints it).
     ``scale="standardized"`` divides F_div and F_prox by their standard deviation across the K
     candidates of the sample (a term that does not vary is left as is), so λ = 1 weighs the two
     equally and a schedule's λ keeps its meaning as a ratio.
