@@ -2,7 +2,9 @@
 
 An iteration is 50 episodes of 100 steps (collected in ``train.chunks`` chunks), HER relabelling
 into the buffer, a normaliser update per chunk and 1,000 DDPG updates of 256 (plus goal generation
-for ghgg / gchgg); evaluation and checkpointing are timed apart (not included). gchgg is also
+for ghgg / gchgg); evaluation and checkpointing are timed apart (not included). After the last
+algorithm's iterations its buffer is filled to 5,000 episodes and one checkpoint is timed: seconds,
+bytes written and peak memory, against the full-buffer checkpoint written before December 2026. gchgg is also
 timed with C = 1, 5 and 50 chunks (C = 50 is the default, the original's per-episode loop; C = 1
 collects all episodes with one policy, then runs all updates), and the ratio C=50 / C=1 printed. The floor is the same work done bare, measured in the same run: 5,000
 raw dm_control ``Environment.step`` calls on one env and 1,000 plain-torch DDPG updates
@@ -15,6 +17,7 @@ raw dm_control ``Environment.step`` calls on one env and 1,000 plain-torch DDPG 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import statistics
 import sys
@@ -33,6 +36,8 @@ from agent_update import BareDDPG  # noqa: E402
 from hydra import compose, initialize_config_dir  # noqa: E402
 
 import envs  # noqa: E402
+from gchgg import checkpoint  # noqa: E402
+from gchgg.rollout import collect  # noqa: E402
 from gchgg.train import CONF_DIR, Trainer  # noqa: E402
 
 PHASES = ("goals", "rollout", "store", "update")  # what an iteration costs; eval and checkpoint apart
@@ -79,10 +84,81 @@ def fill_pool(trainer: Trainer) -> None:
     pool.add(walks.float(), observations)
 
 
+def _rss_mb(field: str = "VmRSS") -> float:
+    """The process's resident memory (``VmRSS``) or its peak since the last reset (``VmHWM``), MB."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) / 1024
+    return math.nan
+
+
+def _reset_peak() -> bool:
+    """Reset the peak-RSS counter (Linux: ``/proc/self/clear_refs``); False where that is not possible."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def _written(folder: Path, since: float) -> int:
+    """Bytes of the files under ``folder`` modified after ``since`` (``time.time()``)."""
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file() and p.stat().st_mtime >= since)
+
+
+def checkpoint_cost(trainer: Trainer, run_dir: Path) -> None:
+    """Checkpoint seconds, bytes written and peak memory per iteration with a full buffer of 5,000
+    push_new episodes, against the full-buffer checkpoint written before (one run, same buffer)."""
+    template = trainer.relabel(trainer_rollout(trainer))  # one chunk's transitions, as stored
+    per_iteration = trainer.cfg.train.episodes // trainer.env.num_envs  # chunks of one iteration
+    capacity_episodes = trainer.cfg.buffer.episodes
+    iterations_to_fill = capacity_episodes // trainer.cfg.train.episodes
+    for k in range(iterations_to_fill):  # the buffer as a long run leaves it, its files written
+        for _ in range(per_iteration):
+            trainer.replay_log.record(1000 + k, trainer.buffer.extend(template), template)
+        trainer.replay_log.flush()
+    trainer.replay_log.prune()
+    trainer.iteration = 1000 + iterations_to_fill
+    for _ in range(per_iteration):  # one more iteration's new rows
+        trainer.replay_log.record(trainer.iteration, trainer.buffer.extend(template), template)
+    new_rows = per_iteration * template.bytes()
+    print(f"checkpoint with a full buffer ({len(trainer.buffer):,} rows of {capacity_episodes:,} episodes); "
+          f"the iteration's new rows: {new_rows / 1e6:.1f} MB")
+    before, tracked = _rss_mb(), _reset_peak()
+    since, start = time.time() - 1e-3, time.perf_counter()
+    trainer.save()
+    seconds = time.perf_counter() - start
+    peak = _rss_mb("VmHWM") if tracked else math.nan
+    written = _written(run_dir, since)
+    print(f"  incremental: {seconds:.2f} s, {written / 1e6:.1f} MB written "
+          f"(target <= 1.5 x new rows + 10 MB = {(1.5 * new_rows + 10e6) / 1e6:.1f} MB), "
+          f"peak memory {peak / before:.2f} x before ({before:.0f} MB; target <= 1.1)")
+    legacy = run_dir / "full-buffer-checkpoint.pt"
+    before, tracked = _rss_mb(), _reset_peak()
+    start = time.perf_counter()
+    checkpoint.save({"buffer": trainer.buffer.state_dict(), "agent": trainer.agent.state_dict()}, legacy)
+    full_seconds = time.perf_counter() - start
+    peak = _rss_mb("VmHWM") if tracked else math.nan
+    print(f"  full-buffer checkpoint (before Dec 2026): {full_seconds:.2f} s, {legacy.stat().st_size / 1e6:.0f} MB "
+          f"written, peak memory {peak / before:.2f} x before")
+    legacy.unlink()
+    return seconds
+
+
+def trainer_rollout(trainer: Trainer):
+    """One chunk of random-action episodes from the trainer's env, with the T* key the trainer adds."""
+    start = trainer.env.reset()
+    rollout = collect(trainer.env, lambda obs, goal: trainer.agent.random_action(len(obs), trainer.explore_rng),
+                      trainer.steps, start)
+    rollout.set("task_goal", rollout["desired_goal"].clone())
+    return rollout
+
+
 def iteration_seconds(
-    algo: str, iterations: int, updates: int, threads: int, chunks: int = 50
+    algo: str, iterations: int, updates: int, threads: int, chunks: int = 50, checkpoint_too: bool = False
 ) -> tuple[float, dict[str, float]]:
-    """Median seconds per timed iteration of ``algo`` on push_new with ``chunks`` chunks, and the median per phase."""
+    """Median seconds per timed iteration of ``algo`` on push_new with ``chunks`` chunks, and the median per phase
+    (with ``checkpoint_too``, also :func:`checkpoint_cost` and its share of the iteration)."""
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose(
             "config",
@@ -102,8 +178,12 @@ def iteration_seconds(
             fill_pool(trainer)
         trainer.iteration_step()  # untimed: fills the buffer
         rows = [trainer.iteration_step() for _ in range(iterations)]
-    phases = {p: statistics.median(r[f"seconds_{p}"] for r in rows) for p in PHASES}
-    return statistics.median(sum(r[f"seconds_{p}"] for p in PHASES) for r in rows), phases
+        phases = {p: statistics.median(r[f"seconds_{p}"] for r in rows) for p in PHASES}
+        total = statistics.median(sum(r[f"seconds_{p}"] for p in PHASES) for r in rows)
+        if checkpoint_too:
+            seconds = checkpoint_cost(trainer, Path(run_dir))
+            print(f"  checkpoint / iteration = {seconds / total:.3f} (target <= 0.02)")
+    return total, phases
 
 
 def main() -> None:
@@ -122,7 +202,8 @@ def main() -> None:
     print(f"floor: {floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare DDPG updates {update_s:.2f} s)")
     seconds = {}
     for algo in args.algos:
-        seconds[algo], phases = iteration_seconds(algo, args.iterations, args.updates, args.threads)
+        seconds[algo], phases = iteration_seconds(algo, args.iterations, args.updates, args.threads,
+                                                  checkpoint_too=algo == args.algos[-1])
         detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
         print(f"{algo:6s} {seconds[algo]:6.2f} s/iteration  {seconds[algo] / floor:.2f}x floor  ({detail})", flush=True)
     if "her" in seconds:

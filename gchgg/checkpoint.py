@@ -51,6 +51,16 @@ def save(state: dict[str, Any], path: str | os.PathLike, *, mode: int | None = N
         raise
 
 
+def remove_temporaries(folder: str | os.PathLike) -> list[Path]:
+    """Delete the temporary files that saves killed before their rename left in ``folder`` (a SIGKILL
+    runs no cleanup); returns them. Only files named as :func:`save` names its temporaries go."""
+    folder = Path(folder)
+    stale = sorted(folder.glob(".*.tmp")) if folder.is_dir() else []
+    for path in stale:
+        path.unlink(missing_ok=True)
+    return stale
+
+
 def load(path: str | os.PathLike) -> dict[str, Any]:
     """Read a checkpoint written by :func:`save`, verifying its checksum.
 

@@ -13,7 +13,8 @@ One iteration, top to bottom (``Trainer.iteration_step``), as the authors' ``lea
    the trade-off hears how many episodes are done;
 4. the iteration's trajectories into the goal generator's pool;
 5. evaluation on target goals, a ``metrics.csv`` row (with the diagnostics the README lists), an
-   atomic checkpoint.
+   atomic checkpoint: the iterations' new replay rows into ``replay/`` (:mod:`gchgg.replay_log`),
+   then ``checkpoint.pt`` with everything else.
 
 All algorithm logic lives in the parts (``envs``, ``gchgg.graph``, ``gchgg.hgg``, ``gchgg.samplers``,
 ``gchgg.transforms``, ``gchgg.agent``); this module only builds them from the config and calls them.
@@ -56,6 +57,7 @@ from gchgg.builders import (  # noqa: E402
     make_tradeoff,
 )
 from gchgg.hgg import estimate_max_distance  # noqa: E402
+from gchgg.replay_log import ReplayLog  # noqa: E402
 from gchgg.rollout import collect, evaluate  # noqa: E402
 from gchgg.validation import check_choice, check_number  # noqa: E402
 
@@ -63,6 +65,7 @@ log = logging.getLogger(__name__)
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 CHECKPOINT = "checkpoint.pt"
 POLICY = "policy.pt"  # the actor alone, beside each checkpoint: what evaluation and export load
+REPLAY = "replay"  # folder of the replay files (gchgg.replay_log): each iteration's stored rows, once
 METRICS = "metrics.csv"
 MAX_DIS_RESETS = 1000  # resets over which HGG's max_dis (largest initial-to-target distance) is taken
 NORMALIZER_SOURCES = ("sampled", "collected")
@@ -182,6 +185,7 @@ class Trainer:
         self.buffer = make_replay_buffer(
             cfg.buffer.episodes, copies * self.steps, self.sampler, batch_size=cfg.train.batch_size, generator=buffer_rng
         )
+        self.replay_log = ReplayLog(run_dir / REPLAY, cfg.buffer.episodes * copies * self.steps)
         self.relabel = make_relabel(
             partial(envs.reward, threshold=cfg.env.threshold),
             k=cfg.her.k,
@@ -270,7 +274,7 @@ class Trainer:
 
             rollout.set("task_goal", targets[rows].unsqueeze(1).expand(n, self.steps, 3))  # T*, for eq. 15
             transitions = self.relabel(rollout)
-            self.buffer.extend(transitions)
+            self.replay_log.record(self.iteration, self.buffer.extend(transitions), transitions)
             if cfg.agent.normalizer_source == "collected":
                 self.agent.update_normalizer(transitions["observation"], transitions["desired_goal"])
             else:  # the original: statistics from one batch drawn as the updates draw them
@@ -318,12 +322,19 @@ class Trainer:
     # -- checkpoints ------------------------------------------------------------------------------
 
     def state_dict(self) -> dict:
+        """Everything but the replay rows (those are in the replay files :attr:`replay_log` lists):
+        the buffer's sampler, writer and generator states and its storage's length."""
+        buffer = self.buffer.state_dict()
+        storage = buffer["_storage"]
+        buffer["_storage"] = {"initialized": storage["initialized"], "_len": storage["_len"]}
         return {
+            "run": self.identity(),
             "iteration": self.iteration,
             "env_steps": self.env_steps,
             "history": self.history,
             "agent": self.agent.state_dict(),
-            "buffer": self.buffer.state_dict(),
+            "buffer": buffer,
+            "replay": self.replay_log.manifest(),
             "tradeoff": None if self.tradeoff is None else self.tradeoff.state_dict(),
             "goal_generator": None if self.goal_generator is None else self.goal_generator.state_dict(),
             "her_rng": self.relabel[-1].generator.get_state(),
@@ -334,10 +345,32 @@ class Trainer:
             "noise_rng": {name: g.get_state() for name, g in self.noise_generators.items()},
         }
 
+    def identity(self) -> dict:
+        """What a checkpoint must agree on to be resumed by this trainer: task, algorithm, seed."""
+        return {"env": self.cfg.env.name, "algo": self.cfg.algo.name, "seed": int(self.cfg.seed)}
+
     def load_state_dict(self, state: dict) -> None:
+        saved = state.get("run")
+        if saved is not None and saved != self.identity():
+            differences = ", ".join(
+                f"{key}: checkpoint {saved.get(key)!r}, this run {value!r}"
+                for key, value in self.identity().items() if saved.get(key) != value
+            )
+            raise ValueError(f"the checkpoint in {self.run_dir} belongs to another run ({differences}); "
+                             "resume it with its own settings, or start this one in another folder")
         self.iteration, self.env_steps, self.history = state["iteration"], state["env_steps"], state["history"]
         self.agent.load_state_dict(state["agent"])
-        self.buffer.load_state_dict(state["buffer"])
+        buffer = dict(state["buffer"])
+        if "replay" in state:  # incremental checkpoint: the rows come from the replay files
+            self.replay_log.restore(state["replay"], self.buffer.storage)
+            restored = self.buffer.storage.state_dict()
+            if restored["_len"] != buffer["_storage"]["_len"]:
+                raise checkpoint.CorruptCheckpointError(
+                    f"the replay files in {self.replay_log.folder} hold {restored['_len']} rows, the checkpoint "
+                    f"says {buffer['_storage']['_len']}"
+                )
+            buffer["_storage"] = restored
+        self.buffer.load_state_dict(buffer)
         if self.tradeoff is not None:
             self.tradeoff.load_state_dict(state["tradeoff"])
         if self.goal_generator is not None:
@@ -351,8 +384,11 @@ class Trainer:
             generator.set_state(state["noise_rng"][name])
 
     def save(self) -> None:
-        """The checkpoint, then the policy snapshot (task, config and actor: megabytes, not the buffer)."""
+        """The iterations' replay files, the checkpoint (megabytes: no replay rows), the superseded replay
+        files removed, then the policy snapshot (task, config and actor)."""
+        self.replay_log.flush()
         checkpoint.save(self.state_dict(), self.run_dir / CHECKPOINT)
+        self.replay_log.prune()
         policy = {
             "iteration": self.iteration,
             "task": self.cfg.env.name,
@@ -533,6 +569,8 @@ def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
             f"run folder {run_dir} already holds a checkpoint: pass resume=true to continue that run, "
             f"or hydra.run.dir=<folder> (or another seed) for a new one"
         )
+    for folder in (run_dir, run_dir / REPLAY):  # what a save killed before its rename left behind
+        checkpoint.remove_temporaries(folder)
     trainer = Trainer(cfg, run_dir)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
     log.info(startup_record(cfg))

@@ -40,3 +40,54 @@ def test_damaged_file_is_reported_as_corrupt(tmp_path, damage, message):
     path.write_bytes(damage(path.read_bytes()))
     with pytest.raises(checkpoint.CorruptCheckpointError, match=message):
         checkpoint.load(path)
+
+
+# -- replay files -----------------------------------------------------------------------------------
+
+
+def test_replay_log_keeps_the_files_with_live_rows_and_restores_the_storage(tmp_path):
+    from tensordict import TensorDict
+    from torchrl.data import LazyTensorStorage
+
+    from gchgg.replay_log import ReplayLog
+
+    storage, log = LazyTensorStorage(6), ReplayLog(tmp_path / "replay", capacity=6)
+    writes = [(0, [0, 1, 2]), (1, [3, 4, 5]), (2, [0, 1]), (3, [2, 0])]  # iteration 0's rows are all overwritten
+    for iteration, rows in writes:
+        index = torch.tensor(rows)
+        data = TensorDict({"x": torch.full((len(rows), 2), float(iteration))}, [len(rows)])
+        storage.set(index, data)
+        log.record(iteration, index, data)
+        if iteration in (1, 3):  # two checkpoints
+            log.flush()
+            log.prune()
+    assert log.manifest() == ["iteration-000001.pt", "iteration-000002.pt", "iteration-000003.pt"]
+    assert sorted(p.name for p in (tmp_path / "replay").iterdir()) == log.manifest()
+    restored = LazyTensorStorage(6)
+    ReplayLog(tmp_path / "replay", capacity=6).restore(log.manifest(), restored)
+    assert len(restored) == len(storage) == 6
+    assert torch.equal(restored.get(torch.arange(6))["x"], storage.get(torch.arange(6))["x"])
+    assert restored.get(torch.arange(6))["x"][:, 0].tolist() == [3.0, 2.0, 3.0, 1.0, 1.0, 1.0]
+
+
+def test_remove_temporaries_deletes_only_what_a_killed_save_left(tmp_path):
+    checkpoint.save({"a": 1}, tmp_path / "checkpoint.pt")
+    (tmp_path / ".checkpoint.pt.abc123.tmp").write_bytes(b"partial")
+    (tmp_path / "notes.tmp").write_text("mine")
+    assert [p.name for p in checkpoint.remove_temporaries(tmp_path)] == [".checkpoint.pt.abc123.tmp"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt", "notes.tmp"]
+
+
+def test_a_failing_rename_leaves_the_previous_checkpoint_loadable_and_no_temporary_file(tmp_path, monkeypatch):
+    path = tmp_path / "checkpoint.pt"
+    checkpoint.save({"iteration": 1}, path)
+
+    def failing_replace(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(checkpoint.os, "replace", failing_replace)
+    with pytest.raises(OSError, match="disk full"):
+        checkpoint.save({"iteration": 2}, path)
+    monkeypatch.undo()
+    assert checkpoint.load(path) == {"iteration": 1}
+    assert [p.name for p in tmp_path.iterdir()] == ["checkpoint.pt"]
