@@ -4,7 +4,9 @@ An iteration is 50 episodes of 100 steps (collected in ``train.chunks`` chunks),
 into the buffer, a normaliser update per chunk and 1,000 DDPG updates of 256 (plus goal generation
 for ghgg / gchgg); evaluation and checkpointing are timed apart (not included). After the last
 algorithm's iterations its buffer is filled to 5,000 episodes and one checkpoint is timed: seconds,
-bytes written and peak memory, against the full-buffer checkpoint written before December 2026. gchgg is also
+bytes written and peak memory, against the full-buffer checkpoint written before December 2026.
+Last, wall-clock seconds per gchgg iteration with evaluation in-line, in the background process and
+without evaluation (``--overlap``). gchgg is also
 timed with C = 1, 5 and 50 chunks (C = 50 is the default, the original's per-episode loop; C = 1
 collects all episodes with one policy, then runs all updates), and the ratio C=50 / C=1 printed. The floor is the same work done bare, measured in the same run: 5,000
 raw dm_control ``Environment.step`` calls on one env and 1,000 plain-torch DDPG updates
@@ -37,6 +39,7 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
+from gchgg.evaluator import BackgroundEvaluator  # noqa: E402
 from gchgg.rollout import collect  # noqa: E402
 from gchgg.train import CONF_DIR, Trainer  # noqa: E402
 
@@ -186,6 +189,39 @@ def iteration_seconds(
     return total, phases
 
 
+def evaluation_overlap(iterations: int, updates: int, threads: int) -> None:
+    """Wall-clock seconds per gchgg iteration with evaluation in-line, in the background process
+    (``eval.background=true``) and without evaluation, in one run (after one untimed iteration each)."""
+    wall = {}
+    for mode, extra in (("without evaluation", ["eval.every=1000"]), ("in-line evaluation", []),
+                        ("background evaluation", ["eval.background=true"])):  # fmt: skip
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = compose("config", overrides=["env=push_new", "algo=gchgg", f"train.updates={updates}",
+                                               "train.warmup_steps=0", f"threads={threads}",
+                                               "train.iterations=1000", *extra])  # fmt: skip
+        with tempfile.TemporaryDirectory() as run_dir:
+            trainer = Trainer(cfg, Path(run_dir))
+            fill_pool(trainer)
+            if cfg.eval.background:
+                trainer.evaluator = BackgroundEvaluator(trainer.build_eval_env, trainer.steps, threads)
+            try:
+                trainer.history.append(trainer.iteration_step())  # untimed: fills the buffer, starts the worker
+                trainer.collect_evaluations(wait=True)
+                start = time.perf_counter()
+                for _ in range(iterations):
+                    trainer.history.append(trainer.iteration_step())
+                    trainer.collect_evaluations()
+                trainer.collect_evaluations(wait=True)
+                wall[mode] = (time.perf_counter() - start) / iterations
+            finally:
+                if trainer.evaluator is not None:
+                    trainer.evaluator.close()
+        print(f"gchgg {mode:22s} {wall[mode]:6.2f} s/iteration (wall clock, {iterations} iterations)", flush=True)
+    base = wall["without evaluation"]
+    print(f"in-line / without = {wall['in-line evaluation'] / base:.2f}; "
+          f"background / without = {wall['background evaluation'] / base:.2f} (target <= 1.1)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--iterations", type=int, default=2, help="timed iterations per algorithm")
@@ -193,6 +229,8 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     parser.add_argument("--chunks", type=int, nargs="*", default=[1, 5, 50], help="chunk counts C timed for gchgg")
     parser.add_argument("--algos", nargs="*", default=["her", "ghgg", "gchgg"], help="algorithms timed at C = 50")
+    parser.add_argument("--overlap", type=int, default=3, metavar="N",
+                        help="iterations timed with in-line, background and no evaluation (0: skip)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
@@ -220,6 +258,8 @@ def main() -> None:
         print(f"gchgg C={chunks:<3d} {by_chunks[chunks]:6.2f} s/iteration  ({detail})", flush=True)
     if {1, 50} <= set(by_chunks):
         print(f"gchgg C=50 / C=1 = {by_chunks[50] / by_chunks[1]:.2f} (target <= 1.2)")
+    if args.overlap:
+        evaluation_overlap(args.overlap, args.updates, args.threads)
 
 
 if __name__ == "__main__":

@@ -56,6 +56,7 @@ from gchgg.builders import (  # noqa: E402
     make_sampler,
     make_tradeoff,
 )
+from gchgg.evaluator import BackgroundEvaluator, env_state  # noqa: E402
 from gchgg.hgg import estimate_max_distance  # noqa: E402
 from gchgg.replay_log import ReplayLog  # noqa: E402
 from gchgg.rollout import collect, evaluate  # noqa: E402
@@ -72,6 +73,17 @@ NORMALIZER_SOURCES = ("sampled", "collected")
 TRADEOFF_SAMPLERS = ("curriculum", "cher")  # samplers that read a trade-off λ
 
 
+def make_eval_env(name: str, episodes: int, seed: int, options: dict, noise_std: float, noise_seed: int):
+    """The evaluation env and its observation-noise generator (``None`` without noise), built the same
+    in the trainer and in the background evaluator's process."""
+    env = envs.make(name, num_envs=episodes, seed=seed, **options)
+    if not noise_std:
+        return env, None
+    generator = torch.Generator().manual_seed(noise_seed)
+    noise = make_observation_noise(envs.observation_layout(name), env.has_object, noise_std, generator)
+    return TransformedEnv(env, noise), generator
+
+
 def check_config(cfg: DictConfig) -> None:
     """Fail before training, naming the setting, on sizes, rates and fractions out of range."""
     for setting in (
@@ -80,6 +92,7 @@ def check_config(cfg: DictConfig) -> None:
     ):  # fmt: skip
         check_positive(setting, OmegaConf.select(cfg, setting), integer=True)
     check_positive("checkpoint.every", cfg.checkpoint.every, integer=True)
+    check_positive("eval.every", cfg.eval.get("every", 1), integer=True)
     for setting in ("train.updates", "train.warmup_steps", "her.k", "threads"):
         check_positive(setting, OmegaConf.select(cfg, setting), integer=True, allow_zero=True)
     check_positive("env.threshold", cfg.env.threshold)
@@ -137,16 +150,26 @@ class Trainer:
         self.chunk_size = cfg.train.episodes // cfg.train.chunks
         options = {"threshold": cfg.env.threshold, "start": cfg.env.get("start", "original")}
         self.env = envs.make(name, num_envs=self.chunk_size, seed=cfg.seed, **options)
-        self.eval_env = envs.make(name, num_envs=cfg.eval.episodes, seed=int(seeds[3]), **options)
         # Observation noise (a camera's error): the policy sees noisy positions; rewards, energy and the
         # goal pool read the true achieved goal the noise transform keeps.
         self.achieved_key, self.noise_generators = "achieved_goal", {}
-        for env_name, std, seed in (("env", cfg.noise.object_std, seeds[5]), ("eval_env", cfg.eval.noise_std, seeds[6])):
-            if std:
-                generator = torch.Generator().manual_seed(int(seed))
-                noise = make_observation_noise(envs.observation_layout(name), self.env.has_object, std, generator)
-                setattr(self, env_name, TransformedEnv(getattr(self, env_name), noise))
-                self.noise_generators[env_name] = generator
+        if cfg.noise.object_std:
+            generator = torch.Generator().manual_seed(int(seeds[5]))
+            noise = make_observation_noise(envs.observation_layout(name), self.env.has_object, cfg.noise.object_std,
+                                           generator)  # fmt: skip
+            self.env = TransformedEnv(self.env, noise)
+            self.noise_generators["env"] = generator
+        self.build_eval_env = partial(
+            make_eval_env, name, cfg.eval.episodes, int(seeds[3]), options, cfg.eval.noise_std, int(seeds[6])
+        )
+        self.eval_env, eval_noise = self.build_eval_env()
+        if eval_noise is not None:
+            self.noise_generators["eval_env"] = eval_noise
+        self.evaluator: BackgroundEvaluator | None = None  # started by train() with eval.background
+        self.eval_pending: dict[int, dict] = {}  # iteration -> policy snapshot, submitted, not yet back
+        self.eval_state: dict | None = None  # the eval env's state before the pending evaluations
+        self._resumed_pending: dict[int, dict] = {}
+        self._logged = 0  # history rows already sent to TensorBoard
         if cfg.noise.object_std:
             self.achieved_key = "true_achieved_goal"  # ObservationNoise keeps the clean achieved goal there
 
@@ -297,8 +320,12 @@ class Trainer:
         row.update(stats.row())
         lap("store")
 
-        # 5. Evaluation on target goals.
-        row["success_rate"] = evaluate(self.eval_env, partial(self.agent.act, explore=False), self.steps)
+        # 5. Evaluation on target goals (in-line, or handed to the background evaluator).
+        if self.evaluates(self.iteration):
+            if self.evaluator is None:
+                row["success_rate"] = evaluate(self.eval_env, partial(self.agent.act, explore=False), self.steps)
+            else:
+                self.submit_evaluation(self.iteration)
         row.update({f"seconds_{phase}": seconds for phase, seconds in timing.items()})
         row["seconds_eval"] = time.perf_counter() - clock
         row.update(
@@ -341,8 +368,10 @@ class Trainer:
             "explore_rng": self.explore_rng.get_state(),
             "torch_rng": torch.get_rng_state(),
             "env_random": self.env.random_state(),
-            "eval_env_random": self.eval_env.random_state(),
-            "noise_rng": {name: g.get_state() for name, g in self.noise_generators.items()},
+            "eval_env_random": (self.eval_state or env_state(self.eval_env, None))["random"],
+            "noise_rng": {name: g.get_state() for name, g in self.noise_generators.items()}
+            | ({"eval_env": self.eval_state["noise"]} if self.eval_state and self.eval_state["noise"] is not None else {}),
+            "eval_pending": list(self.eval_pending.items()),
         }
 
     def identity(self) -> dict:
@@ -382,6 +411,15 @@ class Trainer:
         self.eval_env.set_random_state(state["eval_env_random"])
         for name, generator in self.noise_generators.items():
             generator.set_state(state["noise_rng"][name])
+        # evaluations in flight when the checkpoint was written: submitted again when training goes on
+        self._resumed_pending = dict(state.get("eval_pending", []))
+        self.eval_pending = dict(self._resumed_pending)
+        self._logged = len(self.evaluated()) if self.eval_pending else len(self.history)  # logged by the first run
+        if self.eval_pending and not self.cfg.eval.get("background", False):
+            raise ValueError(
+                f"the checkpoint in {self.run_dir} has evaluations of iterations {sorted(self.eval_pending)} in flight "
+                "(eval.background=true): resume it with eval.background=true"
+            )
 
     def save(self) -> None:
         """The iterations' replay files, the checkpoint (megabytes: no replay rows), the superseded replay
@@ -399,22 +437,79 @@ class Trainer:
         checkpoint.save(policy, self.run_dir / POLICY)
 
     def write_metrics(self) -> None:
-        """Rewrites ``metrics.csv`` from the history (so a resumed run never holds rows twice)."""
-        columns = list(dict.fromkeys(key for row in self.history for key in row))
+        """Rewrites ``metrics.csv`` from the history (so a resumed run never holds rows twice), up to the
+        first row whose background evaluation is still in flight."""
+        rows = self.history
+        if self.eval_pending:
+            first = min(self.eval_pending)
+            rows = [row for row in rows if row["iteration"] < first]
+        columns = list(dict.fromkeys(key for row in rows for key in row))
         tmp = self.run_dir / f".{METRICS}.tmp"
         with open(tmp, "w", newline="") as f:
             writer = csv.DictWriter(f, columns)
             writer.writeheader()
-            writer.writerows(self.history)
+            writer.writerows(rows)
         os.replace(tmp, self.run_dir / METRICS)
 
     # -- the loop ---------------------------------------------------------------------------------
 
+    def evaluates(self, iteration: int) -> bool:
+        """Whether ``iteration`` ends with an evaluation: every ``eval.every``-th one, and the last."""
+        every = self.cfg.eval.get("every", 1)
+        return (iteration + 1) % every == 0 or iteration + 1 == self.cfg.train.iterations
+
+    def submit_evaluation(self, iteration: int, policy: dict | None = None) -> None:
+        """Hand this iteration's policy (or ``policy``) to the background evaluator; the first hand-over
+        after a start carries the eval env's state, and the worker goes on from there."""
+        start = None
+        if self.eval_state is None:
+            start = self.eval_state = env_state(self.eval_env, self.noise_generators.get("eval_env"))
+        self.eval_pending[iteration] = self.agent.policy_state() if policy is None else policy
+        self.evaluator.submit(iteration, self.eval_pending[iteration], start)
+
+    def resumed_policy(self, iteration: int) -> dict:
+        """The policy snapshot a loaded checkpoint kept for ``iteration``'s evaluation in flight."""
+        return self._resumed_pending[iteration]
+
+    def log_rows(self, logger) -> None:
+        """TensorBoard scalars of the rows complete since the last call (a row waits for its evaluation)."""
+        while self._logged < len(self.history):
+            row = self.history[self._logged]
+            if row["iteration"] in self.eval_pending:
+                break
+            if logger is not None:
+                for key, value in row.items():
+                    logger.add_scalar(key, value, row["iteration"])
+            self._logged += 1
+
+    def collect_evaluations(self, wait: bool = False) -> None:
+        """Put finished background evaluations into their rows (``wait``: all of those in flight)."""
+        if self.evaluator is None:
+            return
+        for iteration, success, seconds, after in self.evaluator.results(wait):
+            row = next(r for r in self.history if r["iteration"] == iteration)
+            row["success_rate"], row["seconds_eval_background"] = success, seconds
+            del self.eval_pending[iteration]
+            self.eval_state = after
+
+    def evaluated(self) -> list[dict]:
+        """The rows whose evaluation is done, oldest first."""
+        return [row for row in self.history if "success_rate" in row]
+
     def reached_stop(self) -> bool:
-        """Whether the last ``train.stop_patience`` iterations all had success >= ``train.stop_success``."""
+        """Whether the last ``train.stop_patience`` evaluations all had success >= ``train.stop_success``."""
         threshold, patience = self.cfg.train.stop_success, self.cfg.train.stop_patience
-        recent = self.history[-patience:]
+        recent = self.evaluated()[-patience:]
         return threshold is not None and len(recent) == patience and all(r["success_rate"] >= threshold for r in recent)
+
+    def stop_may_depend_on_pending(self) -> bool:
+        """Whether an evaluation still in flight could make :meth:`reached_stop` true: then the loop
+        waits for it, so that a run stops where in-line evaluation would have stopped it."""
+        threshold, patience = self.cfg.train.stop_success, self.cfg.train.stop_patience
+        if threshold is None or not self.eval_pending:
+            return False
+        recent = self.evaluated()[-(patience - 1):] if patience > 1 else []
+        return all(r["success_rate"] >= threshold for r in recent)
 
     def train(self) -> list[dict[str, float]]:
         """Runs the remaining iterations, checkpointing after each; returns the metrics history."""
@@ -429,21 +524,42 @@ class Trainer:
             unit="it",
             disable=not cfg.logging.progress,
         )
-        while self.iteration < cfg.train.iterations and not self.reached_stop():
-            row = self.iteration_step()
-            tick = time.perf_counter()
-            self.history.append(row)
-            if self.iteration % cfg.checkpoint.every == 0 or self.iteration == cfg.train.iterations or self.reached_stop():
+        if cfg.eval.get("background", False):
+            self.evaluator = BackgroundEvaluator(self.build_eval_env, self.steps, int(cfg.threads or torch.get_num_threads()))
+            for iteration in sorted(self.eval_pending):  # a resumed run's evaluations in flight when it was saved
+                self.eval_pending.pop(iteration)
+                self.submit_evaluation(iteration, policy=self.resumed_policy(iteration))
+        saved_at = self.iteration
+        try:
+            while self.iteration < cfg.train.iterations:
+                if self.stop_may_depend_on_pending():
+                    self.collect_evaluations(wait=True)
+                if self.reached_stop():
+                    break
+                row = self.iteration_step()
+                tick = time.perf_counter()
+                self.history.append(row)
+                self.collect_evaluations()
+                if self.iteration % cfg.checkpoint.every == 0 or self.iteration == cfg.train.iterations or self.reached_stop():
+                    self.collect_evaluations(wait=self.iteration == cfg.train.iterations)  # the last one: complete
+                    self.save()
+                    saved_at = self.iteration
+                row["seconds_checkpoint"] = time.perf_counter() - tick  # in the CSV; in the next checkpoint
+                self.write_metrics()
+                self.log_rows(logger)
+                postfix = {"success": f"{row.get('success_rate', math.nan):.2f}", "train": f"{row['train_success_rate']:.2f}"}
+                postfix.update({key: f"{row[key]:.3g}" for key in ("lambda", "d_g") if key in row})
+                bar.set_postfix(postfix)
+                bar.update(1)
+            self.collect_evaluations(wait=True)
+            if saved_at != self.iteration:  # the stop fired on an evaluation that came back after the checkpoint
                 self.save()
-            row["seconds_checkpoint"] = time.perf_counter() - tick  # in the CSV; in the next checkpoint
             self.write_metrics()
-            if logger is not None:
-                for key, value in row.items():
-                    logger.add_scalar(key, value, row["iteration"])
-            postfix = {"success": f"{row['success_rate']:.2f}", "train": f"{row['train_success_rate']:.2f}"}
-            postfix.update({key: f"{row[key]:.3g}" for key in ("lambda", "d_g") if key in row})
-            bar.set_postfix(postfix)
-            bar.update(1)
+            self.log_rows(logger)
+        finally:
+            if self.evaluator is not None:
+                self.evaluator.close()
+                self.evaluator = None
         bar.close()
         if self.reached_stop():
             print(

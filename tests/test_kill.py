@@ -70,14 +70,14 @@ def metrics(run_dir: Path) -> list[dict[str, str]]:
         return [{k: v for k, v in row.items() if not k.startswith("seconds_")} for row in csv.DictReader(f)]
 
 
-def kill_and_resume(tmp_path: Path, where: str, n: int) -> Path:
-    run_dir = tmp_path / f"killed-{where}-{n}"
+def kill_and_resume(tmp_path: Path, where: str, n: int, extra: tuple[str, ...] = ()) -> Path:
+    run_dir = tmp_path / f"killed-{where}-{n}-{len(extra)}"
     child = CHILD.format(tests=str(ROOT / "tests"))
     env = dict(os.environ, MUJOCO_GL="disable", RL_LOGGING_LEVEL="WARNING")
-    result = subprocess.run([sys.executable, "-c", child, where, str(n), str(run_dir), *overrides(tmp_path)],
+    result = subprocess.run([sys.executable, "-c", child, where, str(n), str(run_dir), *overrides(tmp_path), *extra],
                             env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
     assert result.returncode == -9, result.stderr[-2000:]  # killed by SIGKILL, not finished or failed
-    train.run(config([*overrides(tmp_path), "resume=true"]), run_dir)
+    train.run(config([*overrides(tmp_path), *extra, "resume=true"]), run_dir)
     return run_dir
 
 
@@ -106,6 +106,35 @@ def test_a_run_killed_anywhere_resumes_to_identical_metrics(uninterrupted, tmp_p
     resumed = kill_and_resume(graphs, where, n)
     assert metrics(resumed) == whole
     assert not list(resumed.glob(".*.tmp")) and not list((resumed / "replay").glob(".*.tmp"))
+
+
+def test_background_evaluation_gives_the_metrics_of_inline_evaluation(uninterrupted):
+    whole, graphs = uninterrupted
+    run_dir = graphs / "background"
+    train.run(config([*overrides(graphs), "eval.background=true"]), run_dir)
+    assert metrics(run_dir) == whole
+
+
+def test_a_run_with_background_evaluation_killed_with_one_in_flight_resumes_identically(uninterrupted):
+    whole, graphs = uninterrupted
+    # killed in iteration 4: iteration 3's evaluation may still be running, its row not yet written
+    resumed = kill_and_resume(graphs, "update", 8, ("eval.background=true",))
+    assert metrics(resumed) == whole
+
+
+@pytest.mark.parametrize("background", ["false", "true"])
+def test_an_early_stop_fires_at_the_same_iteration_with_background_evaluation(tmp_path, background):
+    stop = ["train.stop_success=0.0", "train.stop_patience=3", "eval.noise_std=0.01"]  # fires after 3 evaluations
+    inline = train.run(config([*overrides(tmp_path), *stop]), tmp_path / "inline")
+    rows = train.run(config([*overrides(tmp_path), *stop, f"eval.background={background}", "eval.every=1"]),
+                     tmp_path / f"run-{background}")  # fmt: skip
+    assert len(inline) == 3
+    assert metrics(tmp_path / f"run-{background}") == metrics(tmp_path / "inline") and len(rows) == 3
+
+
+def test_eval_every_evaluates_every_kth_iteration_and_the_last(tmp_path):
+    rows = train.run(config([*overrides(tmp_path), "train.iterations=5", "eval.every=2"]), tmp_path / "run")
+    assert ["success_rate" in row for row in rows] == [False, True, False, True, True]
 
 
 def test_a_missing_or_truncated_replay_file_is_named_and_never_used(tmp_path):
