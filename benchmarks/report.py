@@ -3,8 +3,9 @@
 Every benchmark script ends with ``report.run(main, __file__)``. With ``--docs`` on its command line
 (removed before the script parses its own arguments) the figures it printed replace that script's
 section of ``docs/benchmarks.md``, under a line that records the command, the commit, the date,
-the machine and its load average when the run started: these machines are shared, so a figure is
-only as quiet as the machine was. Other sections are left as they are.
+the machine and its load average when the run started (and ``$BENCHMARK_NOTE``, e.g. "training
+runs paused"): these machines are shared, so a figure is only as quiet as the machine was. Other
+sections are left as they are.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ HEADER = """# Benchmarks
 
 Written by the scripts in `benchmarks/` (`python benchmarks/<name>.py --docs`); do not edit by hand.
 Each section is the script's output from its last run with `--docs`, under the commit, date,
-machine and load average it ran with. Speed is printed as ratios measured in the same run: the
+machine and load average it ran with (and how the machine was shared, where that was noted). Speed is printed as ratios measured in the same run: the
 machines are shared and noisy, so absolute times vary between runs by up to 2x.
 """
 
@@ -49,7 +50,8 @@ def run(main: Callable[[], None], script: str) -> None:
     write = "--docs" in sys.argv
     if write:
         sys.argv.remove("--docs")
-    started = _context(script)
+    note = os.environ.get("BENCHMARK_NOTE", "")  # e.g. how the machine was used during the run
+    started = _context(script) + (f" {note}" if note else "")
     captured = io.StringIO()
     with contextlib.redirect_stdout(_Tee(sys.stdout, captured)):
         main()
