@@ -14,6 +14,9 @@ drawn from a seeded generator) and prints, per row, the fraction of episodes in 
 * it rises more than 2 cm, and more than 10 cm, above its start (at any step).
 
 The table goes to stdout and, with ``--out``, into a Markdown file (the README links it).
+
+``--starts`` prints instead, per task, where the authors' joint angles (``envs.geometry.AUTHORS_JOINTS``)
+put this arm's grip, against the tip the task starts at (the authors' tip, REFERENCE.md).
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 import torch  # noqa: E402
 
 import envs  # noqa: E402
-from envs.geometry import ABOVE_START, with_start  # noqa: E402
+from envs.geometry import ABOVE_START, AUTHORS_JOINTS, with_start  # noqa: E402
 
 BATCH = 50
 HAND = ("left_finger", "right_finger", "palm")
@@ -75,12 +78,32 @@ def measure(task: str, start: str, episodes: int) -> dict[str, float]:
     return {key: value / done for key, value in counts.items()} | {"episodes": done}
 
 
+def starts() -> None:
+    """Where the authors' joint angles put this arm's grip, against each task's start tip."""
+    print("| task | the authors' tip (the start) | their joint angles on this arm | difference (m) |")
+    print("|---|---|---|---|")
+    for task, joints in AUTHORS_JOINTS.items():
+        env = envs.load(task, seed=0)
+        env.reset()
+        physics = env.physics
+        tip = physics.grip_position().copy()
+        physics.named.data.qpos[[f"joint{i}" for i in range(1, 8)]] = joints
+        physics.forward()
+        grip = physics.grip_position().copy()
+        fmt = lambda v: "(" + ", ".join(f"{x:.3f}" for x in v) + ")"  # noqa: E731
+        print(f"| {task} | {fmt(tip)} | {fmt(grip)} | {fmt(grip - tip)} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--tasks", nargs="+", default=["push_new", "pick_no_obstacle", "pick_obstacle"])
     parser.add_argument("--out", type=Path, help="also write the table into this Markdown file")
+    parser.add_argument("--starts", action="store_true", help="print where the authors' joint angles put this arm's grip")
     args = parser.parse_args()
+    if args.starts:
+        starts()
+        return
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     lines = [

@@ -126,6 +126,15 @@ GEOMETRY: dict[str, TaskGeometry] = {
     ),
 }
 
+# The authors' start joint angles q1..q7 (radians; REFERENCE.md, "Start states of the original tasks").
+# The tasks start where these put the authors' tool tip (``gripper_start``); ``python docs/learnability.py
+# --starts`` prints where they would put this arm's grip.
+AUTHORS_JOINTS = {
+    "push_new": (0.326, 0.942, 0.0, -1.74, 0.0, 0.461, 0.336),
+    "pick_no_obstacle": (0.356, 0.942, 0.0, -1.53, 0.0, 0.628, 0.336),
+    "pick_obstacle": (0.356, 0.921, 0.0, -1.49, 0.0, 0.733, 0.336),
+}
+
 # The pick tasks' start before December 2026: the grip 18.5 cm above and ~10 cm beside the cube's
 # start, fingers closed. Kept for the learnability comparison (``start="above"``).
 ABOVE_START = {"pick_no_obstacle": (0.75, 0.1, 1.2), "pick_obstacle": (0.75, 0.1, 1.2)}
