@@ -7,7 +7,10 @@ their ratio. The two are timed in alternating rounds of one run and the ratio is
 per-round ratios, so it holds on a shared machine. :class:`BareDDPG` is also the "bare DDPG update"
 of the training-iteration floor (``benchmarks/iteration.py`` may import it).
 
-    python benchmarks/agent_update.py [--threads 2] [--rounds 15] [--updates 40] [--batch-size 256]
+    python benchmarks/agent_update.py [--threads 2] [--rounds 15] [--updates 40] [--batch-size 256] [--compile] [--profile]
+
+``--compile`` also times the same agent with ``torch.compile`` on its loss (the candidate faster
+update) against today's, in alternating rounds; ``--profile`` prints the update's top operators.
 """
 
 from __future__ import annotations
@@ -118,6 +121,9 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=15, help="alternating timing rounds")
     parser.add_argument("--updates", type=int, default=40, help="updates per round and implementation")
     parser.add_argument("--batch-size", type=int, default=256)
+    parser.add_argument("--compile", action="store_true",
+                        help="also time the agent with torch.compile on its loss (the candidate faster update)")
+    parser.add_argument("--profile", action="store_true", help="also print the update's top operators (torch.profiler)")
     args = parser.parse_args()
     if args.threads is not None:
         torch.set_num_threads(args.threads)
@@ -161,6 +167,49 @@ def main() -> None:
     print(f"agent (TorchRL, TensorDict batch): {statistics.median(agent_times) * 1e3:.3f} ms/update")
     print(f"bare plain-torch DDPG update:      {statistics.median(bare_times) * 1e3:.3f} ms/update")
     print(f"ratio agent / bare (median of rounds): {statistics.median(ratios):.3f}")
+    if args.compile:
+        compiled_update(agent, batches, args.rounds, args.updates)
+    if args.profile:
+        profile_update(agent, batches, args.updates)
+
+
+def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> None:
+    """Today's update against the same agent's update with ``torch.compile`` on its loss's tensor path
+    (a copy of the agent: same weights), alternating rounds; compile seconds, ratio, and how far the
+    two agents' weights drift apart."""
+    candidate = copy.deepcopy(agent)
+    loss = candidate.loss_module
+    start = time.perf_counter()
+    loss.losses = torch.compile(loss.losses, dynamic=False)
+    candidate.update(batches[0])
+    agent.update(batches[0])
+    compile_seconds = time.perf_counter() - start
+    today, compiled = [], []
+    for r in range(rounds):
+        for which, times in ((agent, today), (candidate, compiled))[:: 1 if r % 2 else -1]:
+            start = time.perf_counter()
+            for i in range(updates):
+                which.update(batches[i % len(batches)])
+            times.append((time.perf_counter() - start) / updates)
+    drift = max((a - b).abs().max().item() for a, b in zip(agent.actor.parameters(), candidate.actor.parameters()))
+    print(f"torch.compile of the loss: {compile_seconds:.0f} s to compile; {statistics.median(compiled) * 1e3:.3f} "
+          f"ms/update against {statistics.median(today) * 1e3:.3f}: speed-up "
+          f"{statistics.median(today) / statistics.median(compiled):.2f}x (target >= 1.3); actor weights apart by "
+          f"up to {drift:.2g} after {rounds * updates + 1} updates")
+
+
+def profile_update(agent: DDPGAgent, batches, updates: int) -> None:
+    """The update's top operators by self CPU time (torch.profiler)."""
+    from torch.profiler import profile
+
+    with profile() as prof:
+        for i in range(updates):
+            agent.update(batches[i % len(batches)])
+    events = sorted(prof.key_averages(), key=lambda e: -e.self_cpu_time_total)
+    total = sum(e.self_cpu_time_total for e in events)
+    print(f"profile of {updates} updates ({total / updates / 1e3:.2f} ms each), top operators by self CPU time:")
+    for e in events[:8]:
+        print(f"  {e.key:28s} {e.self_cpu_time_total / total:6.1%}")
 
 
 if __name__ == "__main__":
