@@ -68,7 +68,7 @@ def _context(script: str) -> str:
     if _git("status", "--porcelain", "--untracked-files=no", "--", ".", ":!docs/benchmarks.md"):
         commit += " (with uncommitted changes)"
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
-    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     machine = f"{os.cpu_count()} CPUs ({_cpu_model()}), Python {platform.python_version()}"
     return f"`{command}` at {commit}, {date}; {machine}; load average {load} at the start."
 

@@ -105,7 +105,7 @@ def _serve(build_env, steps: int, threads: int, requests, results) -> None:
                 set_env_state(env, noise, state)
             actor = load_policy(policy_state)
             start = time.perf_counter()
-            success = evaluate(env, lambda observation, goal: actor(observation, goal), steps)
+            success = evaluate(env, actor, steps)
             results.put((iteration, success, time.perf_counter() - start, env_state(env, noise)))
     except BaseException:  # reported to the trainer, which raises it
         results.put(("error", traceback.format_exc()))
