@@ -6,8 +6,10 @@ writes each recorded iteration to ``<folder>/iteration-<k>.pt`` (atomic and chec
 :func:`gchgg.checkpoint.save`), the checkpoint itself then holds only :meth:`ReplayLog.manifest` (the
 files that still hold live rows, oldest first), and :meth:`ReplayLog.prune` deletes the files whose
 every row a later file has overwritten. :meth:`ReplayLog.restore` writes the listed files' rows back
-into an empty storage at their indices, oldest first, which rebuilds the storage exactly as it was
-(for any writer: each row ends with the last value written to it).
+into an empty storage at their indices, oldest first, which rebuilds the stored rows exactly as they
+were (for any writer: each row ends with the last value written to it). The ``index`` entry a
+TorchRL buffer adds to the rows it stores is not recorded: a sampled batch gets its indices from
+the sampler.
 
 A run killed at any moment resumes from its last checkpoint: files written after it are not in its
 manifest and are written again (with the same rows) by the repeated iterations; files a checkpoint

@@ -73,10 +73,11 @@ NORMALIZER_SOURCES = ("sampled", "collected")
 TRADEOFF_SAMPLERS = ("curriculum", "cher")  # samplers that read a trade-off λ
 
 
-def make_eval_env(name: str, episodes: int, seed: int, options: dict, noise_std: float, noise_seed: int):
-    """The evaluation env and its observation-noise generator (``None`` without noise), built the same
-    in the trainer and in the background evaluator's process."""
-    env = envs.make(name, num_envs=episodes, seed=seed, **options)
+def make_env(name: str, num_envs: int, seed: int, options: dict, noise_std: float, noise_seed: int):
+    """A batched env with observation noise of ``noise_std`` (a camera's error) and the noise's generator
+    (``None`` without noise): the training and the evaluation env, the latter built the same in the
+    trainer and in the background evaluator's process."""
+    env = envs.make(name, num_envs=num_envs, seed=seed, **options)
     if not noise_std:
         return env, None
     generator = torch.Generator().manual_seed(noise_seed)
@@ -149,26 +150,18 @@ class Trainer:
         self.steps = self.geometry.episode_length
         self.chunk_size = cfg.train.episodes // cfg.train.chunks
         options = {"threshold": cfg.env.threshold, "start": cfg.env.get("start", "original")}
-        self.env = envs.make(name, num_envs=self.chunk_size, seed=cfg.seed, **options)
         # Observation noise (a camera's error): the policy sees noisy positions; rewards, energy and the
         # goal pool read the true achieved goal the noise transform keeps.
-        self.achieved_key, self.noise_generators = "achieved_goal", {}
-        if cfg.noise.object_std:
-            generator = torch.Generator().manual_seed(int(seeds[5]))
-            noise = make_observation_noise(envs.observation_layout(name), self.env.has_object, cfg.noise.object_std,
-                                           generator)  # fmt: skip
-            self.env = TransformedEnv(self.env, noise)
-            self.noise_generators["env"] = generator
+        self.env, noise = make_env(name, self.chunk_size, cfg.seed, options, cfg.noise.object_std, int(seeds[5]))
         self.build_eval_env = partial(
-            make_eval_env, name, cfg.eval.episodes, int(seeds[3]), options, cfg.eval.noise_std, int(seeds[6])
+            make_env, name, cfg.eval.episodes, int(seeds[3]), options, cfg.eval.noise_std, int(seeds[6])
         )
         self.eval_env, eval_noise = self.build_eval_env()
-        if eval_noise is not None:
-            self.noise_generators["eval_env"] = eval_noise
+        self.achieved_key = "achieved_goal"
+        self.noise_generators = {key: g for key, g in (("env", noise), ("eval_env", eval_noise)) if g is not None}
         self.evaluator: BackgroundEvaluator | None = None  # started by train() with eval.background
         self.eval_pending: dict[int, dict] = {}  # iteration -> policy snapshot, submitted, not yet back
         self.eval_state: dict | None = None  # the eval env's state before the pending evaluations
-        self._resumed_pending: dict[int, dict] = {}
         self._logged = 0  # history rows already sent to TensorBoard
         if cfg.noise.object_std:
             self.achieved_key = "true_achieved_goal"  # ObservationNoise keeps the clean achieved goal there
@@ -354,6 +347,11 @@ class Trainer:
         buffer = self.buffer.state_dict()
         storage = buffer["_storage"]
         buffer["_storage"] = {"initialized": storage["initialized"], "_len": storage["_len"]}
+        # the eval env's state before the evaluations in flight (the trainer's own env when none is)
+        evaluation = self.eval_state or env_state(self.eval_env, self.noise_generators.get("eval_env"))
+        noise_rng = {name: g.get_state() for name, g in self.noise_generators.items()}
+        if "eval_env" in noise_rng:
+            noise_rng["eval_env"] = evaluation["noise"]
         return {
             "run": self.identity(),
             "iteration": self.iteration,
@@ -368,9 +366,8 @@ class Trainer:
             "explore_rng": self.explore_rng.get_state(),
             "torch_rng": torch.get_rng_state(),
             "env_random": self.env.random_state(),
-            "eval_env_random": (self.eval_state or env_state(self.eval_env, None))["random"],
-            "noise_rng": {name: g.get_state() for name, g in self.noise_generators.items()}
-            | ({"eval_env": self.eval_state["noise"]} if self.eval_state and self.eval_state["noise"] is not None else {}),
+            "eval_env_random": evaluation["random"],
+            "noise_rng": noise_rng,
             "eval_pending": list(self.eval_pending.items()),
         }
 
@@ -412,8 +409,7 @@ class Trainer:
         for name, generator in self.noise_generators.items():
             generator.set_state(state["noise_rng"][name])
         # evaluations in flight when the checkpoint was written: submitted again when training goes on
-        self._resumed_pending = dict(state.get("eval_pending", []))
-        self.eval_pending = dict(self._resumed_pending)
+        self.eval_pending = dict(state.get("eval_pending", []))
         self._logged = len(self.evaluated()) if self.eval_pending else len(self.history)  # logged by the first run
         if self.eval_pending and not self.cfg.eval.get("background", False):
             raise ValueError(
@@ -466,10 +462,6 @@ class Trainer:
             start = self.eval_state = env_state(self.eval_env, self.noise_generators.get("eval_env"))
         self.eval_pending[iteration] = self.agent.policy_state() if policy is None else policy
         self.evaluator.submit(iteration, self.eval_pending[iteration], start)
-
-    def resumed_policy(self, iteration: int) -> dict:
-        """The policy snapshot a loaded checkpoint kept for ``iteration``'s evaluation in flight."""
-        return self._resumed_pending[iteration]
 
     def log_rows(self, logger) -> None:
         """TensorBoard scalars of the rows complete since the last call (a row waits for its evaluation)."""
@@ -526,9 +518,8 @@ class Trainer:
         )
         if cfg.eval.get("background", False):
             self.evaluator = BackgroundEvaluator(self.build_eval_env, self.steps, int(cfg.threads or torch.get_num_threads()))
-            for iteration in sorted(self.eval_pending):  # a resumed run's evaluations in flight when it was saved
-                self.eval_pending.pop(iteration)
-                self.submit_evaluation(iteration, policy=self.resumed_policy(iteration))
+            for iteration, policy in sorted(self.eval_pending.items()):  # in flight when a resumed run was saved
+                self.submit_evaluation(iteration, policy=policy)
         saved_at = self.iteration
         try:
             while self.iteration < cfg.train.iterations:

@@ -202,17 +202,19 @@ class NearestNeighbours:
         if stats is not None:
             stats["rescored"] = int(unproven.sum())
         if bool(unproven.any()):
-            nearest, unproven = self._rescore_nearby(points, unproven, nearest, pair)
+            # first the goals within two windows' reach in the sorted order (the nearest one is almost
+            # always just outside the window), then, for the few still unproven, all of them
+            nearest, unproven = self._rescore(points, unproven, nearest, pair, 2 * self.span * self.block)
         if bool(unproven.any()):
-            nearest = self._rescore(points, unproven, nearest, pair)
+            nearest, _ = self._rescore(points, unproven, nearest, pair, points.shape[1])
         return torch.empty_like(nearest).scatter_(1, order, nearest)
 
-    def _rescore_nearby(self, points: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair):
-        """First try for the unproven goals: the goals within ``reach = 2·span·block`` sorted positions
-        either side (where the nearest one usually is, just outside the window). Returns ``nearest``
-        with those reads and the goals still unproven (some goal beyond that range may be nearer)."""
+    def _rescore(self, points: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair, reach: int):
+        """The unproven goals' entries of ``nearest`` [K, B] read against every goal within ``reach`` sorted
+        positions either side that is nearer in a straight line than the best distance found. Returns
+        ``nearest`` and the goals still unproven (a goal beyond that range may be nearer; none when
+        ``reach >= B``)."""
         k, b = unproven.shape
-        reach = 2 * self.span * self.block
         kk, ii = unproven.nonzero(as_tuple=True)  # [U]
         cols = (ii.unsqueeze(1) + torch.arange(-reach, reach + 1)).clamp_(0, b - 1)  # [U, W] sorted positions
         at = cols.add((kk * b).unsqueeze(1)).view(-1)
@@ -235,28 +237,6 @@ class NearestNeighbours:
         still = torch.zeros_like(unproven)
         still[kk, ii] = best > gap - self._tolerance()
         return nearest, still
-
-    def _rescore(self, points: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair) -> torch.Tensor:
-        """``nearest [K, B]`` with the unproven goals' entries made exact: the metric is read for every goal
-        nearer in a straight line than the best distance found. The unproven goals of each batch are
-        gathered into ``[K, M]`` rows (M: the most any batch has) and measured against all B goals."""
-        k, b = unproven.shape
-        count = unproven.sum(1)
-        width = int(count.max())
-        rows = torch.argsort(unproven.logical_not().to(torch.uint8), dim=1, stable=True)[:, :width]  # unproven first
-        valid = torch.arange(width) < count.unsqueeze(1)  # [K, M]: padding rows are proven goals, left alone
-        planes = points[..., :3].transpose(1, 2).contiguous()  # [K, 3, B]: a difference per plane is fast
-        own = planes.gather(2, rows.unsqueeze(1).expand(k, 3, width)).unsqueeze(-1)  # [K, 3, M, 1]
-        planes = planes.unsqueeze(2)  # [K, 3, 1, B]
-        straight = (own[:, 0] - planes[:, 0]).square_()
-        straight.add_((own[:, 1] - planes[:, 1]).square_()).add_((own[:, 2] - planes[:, 2]).square_()).sqrt_()
-        straight.sub_(self._tolerance()).scatter_(2, rows.unsqueeze(-1), math.inf)  # [K, M, B], not itself
-        best = nearest.gather(1, rows)  # [K, M]
-        kk, mm, jj = ((straight < best.unsqueeze(-1)) & valid.unsqueeze(-1)).nonzero(as_tuple=True)
-        if not len(kk):
-            return nearest
-        best = best.view(-1).scatter_reduce(0, kk * width + mm, pair(rows[kk, mm], jj, kk), reduce="amin")
-        return nearest.scatter(1, rows, best.view(k, width))
 
     def _pairs(self, vertex: torch.Tensor, goals: torch.Tensor | None):
         """``pair(rows, cols, batch)``: metric distance of goal ``rows`` to goals ``cols`` (indices within
