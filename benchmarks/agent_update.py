@@ -7,10 +7,17 @@ their ratio. The two are timed in alternating rounds of one run and the ratio is
 per-round ratios, so it holds on a shared machine. :class:`BareDDPG` is also the "bare DDPG update"
 of the training-iteration floor (``benchmarks/iteration.py`` may import it).
 
-    python benchmarks/agent_update.py [--threads 2] [--rounds 15] [--updates 40] [--batch-size 256] [--compile] [--profile]
+    python benchmarks/agent_update.py [--threads 2] [--rounds 15] [--updates 40] [--batch-size 256]
+                                      [--min-features 16] [--compile] [--profile]
 
-``--compile`` also times the same agent with ``torch.compile`` on its loss (the candidate faster
-update) against today's, in alternating rounds; ``--profile`` prints the update's top operators.
+Both compare with the agent on torch's own BLAS (``matmul="default"``). The script then times that
+update against the faster one, the same agent with its layers on oneDNN (``matmul="onednn"``,
+:mod:`gchgg.linear`), in alternating rounds, and prints how far the two agree on one fixed batch
+(losses and gradients, relative to their largest entry) and how far their weights and actions drift
+apart over the run's updates, beside the drift of a torch-BLAS twin fed each batch in reverse row
+order: the same math, other float32 rounding, which training amplifies in both. ``--compile`` also times the same agent with
+``torch.compile`` on its loss (a candidate that lost) against today's; ``--profile`` prints both
+updates' top operators.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ from tensordict import TensorDict  # noqa: E402
 from torch import nn  # noqa: E402
 
 from gchgg.agent import DDPGAgent  # noqa: E402
+from gchgg.linear import MIN_FEATURES, use_onednn  # noqa: E402
 
 
 def _mlp(in_features: int, out_features: int, hidden: int = 256, depth: int = 3) -> nn.Sequential:
@@ -123,6 +131,8 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=256)
     parser.add_argument("--compile", action="store_true",
                         help="also time the agent with torch.compile on its loss (the candidate faster update)")
+    parser.add_argument("--min-features", type=int, default=MIN_FEATURES,
+                        help="layers narrower than this stay on torch BLAS in the oneDNN agent (gchgg.linear.MIN_FEATURES)")
     parser.add_argument("--profile", action="store_true", help="also print the update's top operators (torch.profiler)")
     args = parser.parse_args()
     if args.threads is not None:
@@ -134,7 +144,7 @@ def main() -> None:
                                       ("next", "reward"))) for b in batches]  # fmt: skip
 
     torch.manual_seed(0)
-    agent = DDPGAgent(obs_dim, goal_dim, action_dim, generator=torch.Generator().manual_seed(0))
+    agent = DDPGAgent(obs_dim, goal_dim, action_dim, generator=torch.Generator().manual_seed(0), matmul="default")
     bare = BareDDPG(obs_dim, goal_dim, action_dim)
     agent.update_normalizer(
         torch.cat([b["observation"] for b in batches]), torch.cat([b["desired_goal"] for b in batches])
@@ -167,10 +177,69 @@ def main() -> None:
     print(f"agent (TorchRL, TensorDict batch): {statistics.median(agent_times) * 1e3:.3f} ms/update")
     print(f"bare plain-torch DDPG update:      {statistics.median(bare_times) * 1e3:.3f} ms/update")
     print(f"ratio agent / bare (median of rounds): {statistics.median(ratios):.3f}")
+    onednn = copy.deepcopy(agent)  # same weights, normalisers and optimiser state
+    use_onednn(onednn.loss_module, "onednn", min_features=args.min_features)
+    onednn_update(agent, onednn, batches, args.rounds, args.updates, args.min_features)
     if args.compile:
         compiled_update(agent, batches, args.rounds, args.updates)
     if args.profile:
-        profile_update(agent, batches, args.updates)
+        profile_update(agent, batches, args.updates, "torch BLAS")
+        profile_update(onednn, batches, args.updates, "oneDNN")
+
+
+def _fixed_batch_agreement(a: DDPGAgent, b: DDPGAgent, batch) -> tuple[float, float]:
+    """Largest difference of the two losses and of any parameter's gradient on ``batch``, each relative
+    to the largest magnitude of that value under ``a``; no parameter changes."""
+    gaps = []
+    grads = []
+    for agent in (a, b):
+        loss = agent.loss_module
+        out = loss.losses(*loss.inputs(batch))
+        for p in loss.parameters():
+            p.grad = None
+        (out[0] + out[1]).backward()
+        grads.append([p.grad.clone() for p in loss.parameters() if p.grad is not None])
+        gaps.append(out[:2])
+        for p in loss.parameters():
+            p.grad = None
+    loss_gap = max(((x - y).abs() / x.abs()).item() for x, y in zip(*gaps))
+    grad_gap = max(((x - y).abs().max() / x.abs().max().clamp_min(1e-30)).item() for x, y in zip(*grads))
+    return loss_gap, grad_gap
+
+
+def _drift(a: DDPGAgent, b: DDPGAgent, batch) -> tuple[float, float]:
+    """Largest difference of the two actors' weights and of their actions on ``batch``."""
+    weights = max((x - y).abs().max().item() for x, y in zip(a.actor.parameters(), b.actor.parameters()))
+    with torch.no_grad():
+        actions = (a.actor(batch["observation"], batch["desired_goal"])
+                   - b.actor(batch["observation"], batch["desired_goal"])).abs().max().item()  # fmt: skip
+    return weights, actions
+
+
+def onednn_update(agent: DDPGAgent, onednn: DDPGAgent, batches, rounds: int, updates: int, min_features: int) -> None:
+    """Today's update (torch BLAS) against the same agent with its layers on oneDNN, alternating
+    rounds; their agreement on a fixed batch, and how far they drift apart beside a torch-BLAS twin fed
+    every batch in reverse row order (the same math: only the order of the batch means' sums differs)."""
+    loss_gap, grad_gap = _fixed_batch_agreement(agent, onednn, batches[0])
+    twin = copy.deepcopy(agent)
+    reversed_batches = [b[torch.arange(len(b) - 1, -1, -1)] for b in batches]
+    today, fast = [], []
+    for r in range(rounds):
+        for which, times in ((agent, today), (onednn, fast))[:: 1 if r % 2 else -1]:
+            start = time.perf_counter()
+            for i in range(updates):
+                which.update(batches[i % len(batches)])
+            times.append((time.perf_counter() - start) / updates)
+        for i in range(updates):
+            twin.update(reversed_batches[i % len(batches)])
+    print(f"oneDNN layers (matmul=onednn, layers >= {min_features} wide): {statistics.median(fast) * 1e3:.3f} ms/update against "
+          f"{statistics.median(today) * 1e3:.3f} on torch BLAS: speed-up "
+          f"{statistics.median(today) / statistics.median(fast):.2f}x (target >= 1.3)")
+    print(f"  one fixed batch: losses agree to {loss_gap:.1e}, gradients to {grad_gap:.1e} of their largest entry")
+    fresh = batches[-1]
+    print(f"  after {rounds * updates} updates, actor weights / actions apart by: oneDNN vs torch BLAS "
+          "{:.2g} / {:.2g}; torch BLAS vs the same on reversed batches {:.2g} / {:.2g}".format(
+              *_drift(agent, onednn, fresh), *_drift(agent, twin, fresh)))
 
 
 def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> None:
@@ -198,7 +267,7 @@ def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> Non
           f"up to {drift:.2g} after {rounds * updates + 1} updates")
 
 
-def profile_update(agent: DDPGAgent, batches, updates: int) -> None:
+def profile_update(agent: DDPGAgent, batches, updates: int, name: str) -> None:
     """The update's top operators by self CPU time (torch.profiler)."""
     from torch.profiler import profile
 
@@ -207,7 +276,7 @@ def profile_update(agent: DDPGAgent, batches, updates: int) -> None:
             agent.update(batches[i % len(batches)])
     events = sorted(prof.key_averages(), key=lambda e: -e.self_cpu_time_total)
     total = sum(e.self_cpu_time_total for e in events)
-    print(f"profile of {updates} updates ({total / updates / 1e3:.2f} ms each), top operators by self CPU time:")
+    print(f"{name}: profile of {updates} updates ({total / updates / 1e3:.2f} ms each), top operators by self CPU time:")
     for e in events[:8]:
         print(f"  {e.key:28s} {e.self_cpu_time_total / total:6.1%}")
 

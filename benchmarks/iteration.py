@@ -13,7 +13,10 @@ raw dm_control ``Environment.step`` calls on one env and 1,000 plain-torch DDPG 
 (``benchmarks/agent_update.py``'s ``BareDDPG``). Each algorithm first runs one untimed iteration
 (filling the buffer; the goal pool is filled with 1,000 synthetic trajectories beforehand), then ``--iterations`` timed ones; the median is printed.
 
-    python benchmarks/iteration.py [--iterations 2] [--updates 1000] [--threads 1] [--chunks 1 5 50]
+The networks' products run on ``--matmul`` (default ``auto``, the trainer's default: oneDNN where
+torch has it), the bare updates of the floor too.
+
+    python benchmarks/iteration.py [--iterations 2] [--updates 1000] [--threads 1] [--chunks 1 5 50] [--matmul auto]
 """
 
 from __future__ import annotations
@@ -40,14 +43,16 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
 from gchgg.evaluator import BackgroundEvaluator  # noqa: E402
+from gchgg.linear import MATMUL_BACKENDS, resolve_matmul, use_onednn  # noqa: E402
 from gchgg.rollout import collect  # noqa: E402
 from gchgg.train import CONF_DIR, Trainer  # noqa: E402
 
 PHASES = ("goals", "rollout", "store", "update")  # what an iteration costs; eval and checkpoint apart
 
 
-def floor_seconds(episodes: int, steps: int, updates: int, batch_size: int) -> tuple[float, float]:
-    """Seconds of ``episodes * steps`` raw dm_control steps and of ``updates`` bare DDPG updates."""
+def floor_seconds(episodes: int, steps: int, updates: int, batch_size: int, matmul: str) -> tuple[float, float]:
+    """Seconds of ``episodes * steps`` raw dm_control steps and of ``updates`` bare DDPG updates
+    (their products on ``matmul``)."""
     env = envs.load("push_new", seed=0)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, (steps, 3))
@@ -60,6 +65,8 @@ def floor_seconds(episodes: int, steps: int, updates: int, batch_size: int) -> t
     env_seconds = time.perf_counter() - start
 
     bare = BareDDPG(25, 3, 3)
+    for network in (bare.actor, bare.critic, bare.target_actor, bare.target_critic):
+        use_onednn(network, matmul)
     g = torch.Generator().manual_seed(0)
     batch = (
         torch.randn(batch_size, 25, generator=g),
@@ -158,7 +165,8 @@ def trainer_rollout(trainer: Trainer):
 
 
 def iteration_seconds(
-    algo: str, iterations: int, updates: int, threads: int, chunks: int = 50, checkpoint_too: bool = False
+    algo: str, iterations: int, updates: int, threads: int, chunks: int = 50, checkpoint_too: bool = False,
+    matmul: str = "auto",
 ) -> tuple[float, dict[str, float]]:
     """Median seconds per timed iteration of ``algo`` on push_new with ``chunks`` chunks, and the median per phase
     (with ``checkpoint_too``, also :func:`checkpoint_cost` and its share of the iteration)."""
@@ -173,6 +181,7 @@ def iteration_seconds(
                 "train.warmup_steps=0",  # the policy acts, as after warm-up
                 "eval.episodes=1",  # evaluation is not part of the timed work
                 f"threads={threads}",
+                f"matmul={matmul}",
             ],
         )
     with tempfile.TemporaryDirectory() as run_dir:
@@ -189,7 +198,7 @@ def iteration_seconds(
     return total, phases
 
 
-def evaluation_overlap(iterations: int, updates: int, threads: int) -> None:
+def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str = "auto") -> None:
     """Wall-clock seconds per gchgg iteration with evaluation in-line, in the background process
     (``eval.background=true``) and without evaluation, in one run (after one untimed iteration each)."""
     wall = {}
@@ -197,13 +206,13 @@ def evaluation_overlap(iterations: int, updates: int, threads: int) -> None:
                         ("background evaluation", ["eval.background=true"])):  # fmt: skip
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             cfg = compose("config", overrides=["env=push_new", "algo=gchgg", f"train.updates={updates}",
-                                               "train.warmup_steps=0", f"threads={threads}",
+                                               "train.warmup_steps=0", f"threads={threads}", f"matmul={matmul}",
                                                "train.iterations=1000", *extra])  # fmt: skip
         with tempfile.TemporaryDirectory() as run_dir:
             trainer = Trainer(cfg, Path(run_dir))
             fill_pool(trainer)
             if cfg.eval.background:
-                trainer.evaluator = BackgroundEvaluator(trainer.build_eval_env, trainer.steps, threads)
+                trainer.evaluator = BackgroundEvaluator(trainer.build_eval_env, trainer.steps, threads, matmul)
             try:
                 trainer.history.append(trainer.iteration_step())  # untimed: fills the buffer, starts the worker
                 trainer.collect_evaluations(wait=True)
@@ -229,19 +238,21 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     parser.add_argument("--chunks", type=int, nargs="*", default=[1, 5, 50], help="chunk counts C timed for gchgg")
     parser.add_argument("--algos", nargs="*", default=["her", "ghgg", "gchgg"], help="algorithms timed at C = 50")
+    parser.add_argument("--matmul", default="auto", choices=MATMUL_BACKENDS, help="the networks' products (gchgg.linear)")
     parser.add_argument("--overlap", type=int, default=3, metavar="N",
                         help="iterations timed with in-line, background and no evaluation (0: skip)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
-    env_s, update_s = floor_seconds(50, 100, args.updates, 256)
+    env_s, update_s = floor_seconds(50, 100, args.updates, 256, args.matmul)
     floor = env_s + update_s
-    print(f"push_new, 50 episodes x 100 steps + {args.updates} updates of 256, threads={args.threads}")
+    print(f"push_new, 50 episodes x 100 steps + {args.updates} updates of 256, threads={args.threads}, "
+          f"matmul={args.matmul} ({resolve_matmul(args.matmul)})")
     print(f"floor: {floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare DDPG updates {update_s:.2f} s)")
     seconds = {}
     for algo in args.algos:
         seconds[algo], phases = iteration_seconds(algo, args.iterations, args.updates, args.threads,
-                                                  checkpoint_too=algo == args.algos[-1])
+                                                  checkpoint_too=algo == args.algos[-1], matmul=args.matmul)
         detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
         print(f"{algo:6s} {seconds[algo]:6.2f} s/iteration  {seconds[algo] / floor:.2f}x floor  ({detail})", flush=True)
     if "her" in seconds:
@@ -253,13 +264,14 @@ def main() -> None:
         if chunks in by_chunks:
             print(f"gchgg C={chunks:<3d} {by_chunks[chunks]:6.2f} s/iteration  (the gchgg line above)", flush=True)
             continue
-        by_chunks[chunks], phases = iteration_seconds("gchgg", args.iterations, args.updates, args.threads, chunks)
+        by_chunks[chunks], phases = iteration_seconds("gchgg", args.iterations, args.updates, args.threads, chunks,
+                                                      matmul=args.matmul)
         detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
         print(f"gchgg C={chunks:<3d} {by_chunks[chunks]:6.2f} s/iteration  ({detail})", flush=True)
     if {1, 50} <= set(by_chunks):
         print(f"gchgg C=50 / C=1 = {by_chunks[50] / by_chunks[1]:.2f} (target <= 1.2)")
     if args.overlap:
-        evaluation_overlap(args.overlap, args.updates, args.threads)
+        evaluation_overlap(args.overlap, args.updates, args.threads, args.matmul)
 
 
 if __name__ == "__main__":

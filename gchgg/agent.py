@@ -18,7 +18,9 @@ The agent follows the reference implementation's defaults (``REFERENCE.md``, "Tr
 ``DDPGLoss`` has neither the clipped bootstrap nor the action penalty); :class:`DDPGAgent` adds the
 optimisers, the target-update schedule, exploration, the value function HGG needs and a complete
 ``state_dict``. Its :meth:`DDPGAgent.update` reads the batch's tensors once and runs the loss's
-tensor path (``benchmarks/agent_update.py`` times it).
+tensor path (``benchmarks/agent_update.py`` times it). Its ``matmul`` argument picks who computes
+the hidden layers' matrix products (:mod:`gchgg.linear`: oneDNN where torch has it); it changes
+speed, not the math.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import MLP
 
+from gchgg.linear import use_onednn
 from gchgg.validation import check_number
 
 __all__ = [
@@ -495,6 +498,9 @@ class DDPGAgent:
         action_dim: action size.
         config: the hyperparameters (:class:`DDPGConfig`; default: the original code's).
         generator: draws the initial weights (``None``: torch's global generator).
+        matmul: who computes the hidden layers' products, one of :data:`gchgg.linear.MATMUL_BACKENDS`
+            (``"auto"``: oneDNN where this torch has it). Speed only: it is not a hyperparameter,
+            is not saved, and a state loads under any backend.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
     The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
@@ -527,6 +533,7 @@ class DDPGAgent:
         config: DDPGConfig | None = None,
         *,
         generator: torch.Generator | None = None,
+        matmul: str = "auto",
         **overrides: Any,
     ) -> None:
         unknown = set(overrides) - {f.name for f in fields(DDPGConfig)}
@@ -549,6 +556,7 @@ class DDPGAgent:
         self.loss_module = HindsightDDPGLoss(
             actor, critic, gamma=config.gamma, action_l2=config.action_l2, clip_return=config.clip_return
         )
+        use_onednn(self.loss_module, matmul)  # the online and the target networks
         # fused Adam: one kernel per step instead of several per parameter
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
@@ -766,9 +774,9 @@ class DDPGAgent:
             )
 
 
-def load_policy(state: dict[str, Any]) -> GoalConditionedActor:
+def load_policy(state: dict[str, Any], matmul: str = "auto") -> GoalConditionedActor:
     """The deterministic actor ``actor(observation, goal) -> action`` of a :meth:`DDPGAgent.policy_state`
-    (normalisation included), in eval mode.
+    (normalisation included), in eval mode; ``matmul`` as for :class:`DDPGAgent`.
 
     Raises:
         KeyError: the state lacks ``hparams`` or ``actor``.
@@ -781,7 +789,7 @@ def load_policy(state: dict[str, Any]) -> GoalConditionedActor:
         h["obs_dim"], h["goal_dim"], h["action_dim"], tuple(h["hidden"]),
         norm_std_min=h["norm_std_min"], norm_clip=h["norm_clip"],
     )  # fmt: skip
-    module = actor.module
+    module = use_onednn(actor.module, matmul)
     module.load_state_dict(state["actor"])
     return module.eval()
 

@@ -42,13 +42,17 @@ class BackgroundEvaluator:
             as the trainer builds it (called once, in the worker).
         steps: episode length.
         threads: torch threads in the worker.
+        matmul: the backend of the policy's products (:func:`gchgg.agent.load_policy`), the trainer's, so
+            that a background evaluation equals the in-line one.
     """
 
-    def __init__(self, build_env: Callable[[], tuple[Any, torch.Generator | None]], steps: int, threads: int) -> None:
+    def __init__(
+        self, build_env: Callable[[], tuple[Any, torch.Generator | None]], steps: int, threads: int, matmul: str = "auto"
+    ) -> None:
         context = multiprocessing.get_context("spawn")  # no fork of a process holding MuJoCo and OpenMP state
         self._requests, self._results = context.Queue(), context.Queue()
         self._process = context.Process(
-            target=_serve, args=(build_env, steps, threads, self._requests, self._results), daemon=True
+            target=_serve, args=(build_env, steps, threads, matmul, self._requests, self._results), daemon=True
         )
         self._process.start()
         self.in_flight = 0
@@ -92,7 +96,7 @@ class BackgroundEvaluator:
             self._process.join()
 
 
-def _serve(build_env, steps: int, threads: int, requests, results) -> None:
+def _serve(build_env, steps: int, threads: int, matmul: str, requests, results) -> None:
     try:
         torch.set_num_threads(threads)
         from gchgg.agent import load_policy
@@ -103,7 +107,7 @@ def _serve(build_env, steps: int, threads: int, requests, results) -> None:
             iteration, policy_state, state = request
             if state is not None:
                 set_env_state(env, noise, state)
-            actor = load_policy(policy_state)
+            actor = load_policy(policy_state, matmul)
             start = time.perf_counter()
             success = evaluate(env, actor, steps)
             results.put((iteration, success, time.perf_counter() - start, env_state(env, noise)))

@@ -75,7 +75,7 @@ def export(run_dir: str | os.PathLike, fmt: str, out: str | os.PathLike) -> Path
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {FORMATS}, got {fmt!r}")
     saved = load_policy_file(run_dir)
-    policy = _Policy(load_policy(saved["policy"])).eval()
+    policy = _Policy(load_policy(saved["policy"], matmul="default")).eval()  # plain layers to trace
     h = saved["policy"]["hparams"]
     example = (torch.zeros(1, h["obs_dim"]), torch.zeros(1, h["goal_dim"]))
     out = Path(out)

@@ -33,7 +33,7 @@ import numpy as np
 
 __all__ = ["Run", "find_runs", "group_runs", "iqr", "plot", "table"]
 
-_IGNORED = ("seed", "resume", "threads", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
+_IGNORED = ("seed", "resume", "threads", "matmul", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
 _SEED_SUFFIX = re.compile(r"-seed\d+$")
 
 

@@ -1,0 +1,150 @@
+"""Linear layers whose CPU matrix products run on oneDNN: the speed device of the DDPG update.
+
+PyTorch computes a float32 :class:`torch.nn.Linear` on the CPU with its BLAS (MKL on x86). On
+the AMD EPYC cores this project runs on, MKL takes no AVX-512 path, and oneDNN's matmul runs the
+update's 256-wide layers about twice as fast (``python benchmarks/linear.py`` prints both, per
+layer shape and batch size; ``python benchmarks/agent_update.py --matmul`` the whole update).
+
+:class:`OneDNNLinear` *is* an ``nn.Linear`` (same parameters, same state dict, same math): its
+forward and backward compute ``x·Wᵀ + b``, ``∂x = ∂y·W`` and ``∂W = ∂yᵀ·x`` with oneDNN for 2-D
+float32 CPU batches of at least :data:`MIN_BATCH` rows, and call ``F.linear`` otherwise (small
+batches, where oneDNN's call costs more than it saves; tracing, export and ``torch.compile``;
+other dtypes and devices). Only the order in which the products are summed differs from MKL's,
+so values agree to float32 rounding (``tests/test_linear.py``). :func:`use_onednn` converts the
+layers of a network in place; :func:`resolve_matmul` turns the ``matmul`` setting into a backend.
+
+oneDNN is reached through ``torch.ops.mkldnn._linear_pointwise``, the dense-input linear that
+TorchInductor's CPU backend calls; where a torch build lacks it, ``matmul=auto`` falls back to
+torch's own BLAS.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = ["MATMUL_BACKENDS", "MIN_BATCH", "MIN_FEATURES", "OneDNNLinear", "onednn_available", "resolve_matmul",
+           "use_onednn"]  # fmt: skip
+
+MATMUL_BACKENDS = ("auto", "onednn", "default")
+"""``auto``: oneDNN where this torch has it, else torch's BLAS; ``onednn``: oneDNN or an error;
+``default``: torch's BLAS (``F.linear``) everywhere."""
+
+MIN_BATCH = 64
+"""Rows from which a batch goes to oneDNN: below it a call's fixed cost outweighs the faster kernel
+(``benchmarks/linear.py``: acting in one env, a 1-row product costs 3–10× as much on oneDNN; from 64
+rows the hidden layers gain, at 256 every product of the input and hidden layers does)."""
+
+MIN_FEATURES = 16
+"""Layers narrower than this on either side (the 1–4-wide output layers) stay on ``F.linear``: their
+products are too thin for oneDNN to gain (``benchmarks/linear.py``: 0.5–0.7× at 256 rows). The
+input layers (13–37 features wide) gain at 256 rows, and so does the whole update with them on
+oneDNN (``benchmarks/agent_update.py --min-features 64`` times it with the hidden layers alone)."""
+
+
+def _linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """``x·weightᵀ + bias`` by oneDNN; ``x`` [B, in] and ``weight`` [out, in] may be strided views."""
+    return torch.ops.mkldnn._linear_pointwise(x, weight, bias, "none", [], "")
+
+
+class _OneDNNLinearFunction(torch.autograd.Function):
+    """``y = x·Wᵀ + b`` with its three gradients, each one oneDNN product (no transposed copies)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+        ctx.save_for_backward(x, weight)
+        ctx.has_bias = bias is not None
+        return _linear(x, weight, bias)
+
+    @staticmethod
+    def backward(ctx, grad_y: torch.Tensor):
+        x, weight = ctx.saved_tensors
+        grad_x = grad_weight = grad_bias = None
+        if ctx.needs_input_grad[0]:
+            grad_x = _linear(grad_y, weight.t(), None)  # ∂y·W
+        if ctx.needs_input_grad[1]:
+            grad_weight = _linear(grad_y.t(), x.t(), None)  # ∂yᵀ·x
+        if ctx.has_bias and ctx.needs_input_grad[2]:
+            grad_bias = grad_y.sum(0)
+        return grad_x, grad_weight, grad_bias
+
+
+class OneDNNLinear(nn.Linear):
+    """An :class:`torch.nn.Linear` whose large CPU float32 batches are computed by oneDNN.
+
+    Same constructor, parameters and state dict as ``nn.Linear``. Batches that are not 2-D float32
+    CPU tensors of at least :data:`MIN_BATCH` rows, and every call while tracing, exporting or
+    compiling, go through ``F.linear`` unchanged. Build one through :func:`use_onednn`, which checks
+    that this torch has oneDNN's linear.
+
+    Examples:
+        >>> layer = use_onednn(nn.Sequential(nn.Linear(256, 256)), backend="onednn")[0]
+        >>> x = torch.randn(64, 256)
+        >>> bool(torch.allclose(layer(x), F.linear(x, layer.weight, layer.bias), atol=1e-4))
+        True
+    """
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if (
+            not (torch.jit.is_tracing() or torch.jit.is_scripting() or torch.compiler.is_compiling())
+            and not torch.onnx.is_in_onnx_export()
+            and x.dim() == 2
+            and x.shape[0] >= MIN_BATCH
+            and x.dtype == self.weight.dtype == torch.float32
+            and x.device.type == "cpu"
+        ):
+            return _OneDNNLinearFunction.apply(x, self.weight, self.bias)
+        return F.linear(x, self.weight, self.bias)
+
+
+@functools.cache
+def onednn_available() -> bool:
+    """Whether this torch build computes a dense float32 linear with oneDNN (checked by one call)."""
+    if not torch.backends.mkldnn.is_available():
+        return False
+    try:
+        x, weight = torch.ones(2, 3), torch.ones(4, 3)
+        return bool(torch.equal(_linear(x, weight, None), torch.full((2, 4), 3.0)))
+    except (AttributeError, RuntimeError, NotImplementedError):
+        return False
+
+
+def resolve_matmul(matmul: str) -> str:
+    """The backend a ``matmul`` setting selects on this machine: ``"onednn"`` or ``"default"``.
+
+    Raises:
+        ValueError: ``matmul`` is not one of :data:`MATMUL_BACKENDS`.
+        RuntimeError: ``matmul="onednn"`` and this torch build has no oneDNN linear.
+    """
+    if matmul not in MATMUL_BACKENDS:
+        raise ValueError(f"matmul must be one of {list(MATMUL_BACKENDS)}, got {matmul!r}")
+    if matmul == "default":
+        return "default"
+    if onednn_available():
+        return "onednn"
+    if matmul == "onednn":
+        raise RuntimeError(
+            "matmul='onednn' but this torch build has no oneDNN linear (torch.ops.mkldnn._linear_pointwise); "
+            "use matmul=auto (falls back to torch's BLAS) or matmul=default"
+        )
+    return "default"
+
+
+def use_onednn(module: nn.Module, backend: str = "auto", min_features: int = MIN_FEATURES) -> nn.Module:
+    """Set the linear layers of ``module`` to ``backend``, in place, and return ``module``.
+
+    With ``backend`` resolving to oneDNN (:func:`resolve_matmul`), every ``nn.Linear`` at least
+    ``min_features`` wide on both sides becomes a :class:`OneDNNLinear` (its class changes; its
+    parameters are the same tensors, so optimisers, target copies and state dicts are unaffected).
+    With ``"default"`` every :class:`OneDNNLinear` becomes a plain ``nn.Linear`` again.
+    """
+    onednn = resolve_matmul(backend) == "onednn"
+    for layer in module.modules():
+        if onednn and type(layer) is nn.Linear and min(layer.in_features, layer.out_features) >= min_features:
+            layer.__class__ = OneDNNLinear
+        elif not onednn and type(layer) is OneDNNLinear:
+            layer.__class__ = nn.Linear
+    return module

@@ -1,0 +1,153 @@
+"""The oneDNN linear layer computes what ``nn.Linear`` computes, and the ``matmul`` setting picks it."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torch import nn
+
+from gchgg import linear
+from gchgg.agent import DDPGAgent, load_policy
+from gchgg.linear import (
+    MIN_BATCH,
+    OneDNNLinear,
+    onednn_available,
+    resolve_matmul,
+    use_onednn,
+)
+
+needs_onednn = pytest.mark.skipif(not onednn_available(), reason="this torch build has no oneDNN linear")
+
+
+def _reference(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """x·Wᵀ + b in float64, written out (shares nothing with the code under test)."""
+    return (x.double()[:, None, :] * weight.double()[None, :, :]).sum(-1) + bias.double()
+
+
+@needs_onednn
+@pytest.mark.parametrize("n_in,n_out", [(31, 256), (256, 256), (256, 3)])
+@pytest.mark.parametrize("input_grad", [True, False])
+def test_values_and_gradients_match_float64_reference(n_in, n_out, input_grad):
+    g = torch.Generator().manual_seed(0)
+    layer = OneDNNLinear(n_in, n_out)
+    with torch.no_grad():
+        layer.weight.copy_(torch.randn(n_out, n_in, generator=g) / n_in**0.5)
+        layer.bias.copy_(torch.randn(n_out, generator=g))
+    x = torch.randn(256, n_in, generator=g).requires_grad_(input_grad)
+    grad_y = torch.randn(256, n_out, generator=g)
+    y = layer(x)
+    y.backward(grad_y)
+
+    x64, w64 = x.detach().double().requires_grad_(True), layer.weight.detach().double().requires_grad_(True)
+    b64 = layer.bias.detach().double().requires_grad_(True)
+    y64 = _reference(x64, w64, b64)
+    y64.backward(grad_y.double())
+    assert y.dtype == torch.float32
+    torch.testing.assert_close(y.double(), y64, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(layer.weight.grad.double(), w64.grad, rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(layer.bias.grad.double(), b64.grad, rtol=1e-5, atol=1e-4)
+    if input_grad:
+        torch.testing.assert_close(x.grad.double(), x64.grad, rtol=1e-5, atol=1e-4)
+    else:
+        assert x.grad is None
+
+
+@needs_onednn
+def test_small_batches_tracing_and_other_dtypes_take_torch_linear_exactly():
+    layer = OneDNNLinear(256, 256)
+    small = torch.randn(MIN_BATCH - 1, 256)
+    assert torch.equal(layer(small), nn.functional.linear(small, layer.weight, layer.bias))
+    big = torch.randn(MIN_BATCH, 256)
+    traced = torch.jit.trace(layer, big)
+    assert "mkldnn" not in str(traced.graph)
+    assert torch.equal(traced(big), nn.functional.linear(big, layer.weight, layer.bias))
+    double = copy.deepcopy(layer).double()
+    x64 = big.double()
+    assert torch.equal(double(x64), nn.functional.linear(x64, double.weight, double.bias))
+    batched = torch.randn(2, MIN_BATCH, 256)  # 3-D input
+    assert torch.equal(layer(batched), nn.functional.linear(batched, layer.weight, layer.bias))
+
+
+@needs_onednn
+def test_use_onednn_converts_wide_layers_in_place_and_back():
+    net = nn.Sequential(nn.Linear(31, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(), nn.Linear(256, 3))
+    params = list(net.parameters())
+    keys = list(net.state_dict())
+    use_onednn(net, "onednn")
+    assert [type(m) for m in net if isinstance(m, nn.Linear)] == [OneDNNLinear, OneDNNLinear, nn.Linear]
+    assert all(a is b for a, b in zip(params, net.parameters()))  # optimisers keep working
+    assert list(net.state_dict()) == keys
+    use_onednn(net, "default")
+    assert all(type(m) is nn.Linear for m in net if isinstance(m, nn.Linear))
+
+
+def test_resolve_matmul_names_the_setting_and_falls_back(monkeypatch):
+    with pytest.raises(ValueError, match=r"matmul must be one of \['auto', 'onednn', 'default'\], got 'mkl'"):
+        resolve_matmul("mkl")
+    assert resolve_matmul("default") == "default"
+    monkeypatch.setattr(linear, "onednn_available", lambda: False)
+    assert resolve_matmul("auto") == "default"
+    with pytest.raises(RuntimeError, match="matmul='onednn' but this torch build has no oneDNN linear"):
+        resolve_matmul("onednn")
+    net = use_onednn(nn.Sequential(nn.Linear(256, 256)), "auto")
+    assert type(net[0]) is nn.Linear
+
+
+def _batch(generator: torch.Generator, size: int = 256) -> TensorDict:
+    return TensorDict(
+        {
+            "observation": torch.randn(size, 25, generator=generator),
+            "desired_goal": torch.randn(size, 3, generator=generator),
+            "action": torch.rand(size, 3, generator=generator) * 2 - 1,
+            "next": {
+                "observation": torch.randn(size, 25, generator=generator),
+                "reward": -(torch.rand(size, 1, generator=generator) < 0.8).float(),
+            },
+        },
+        [size],
+    )
+
+
+@needs_onednn
+def test_agent_update_on_onednn_agrees_with_torch_blas_and_repeats_exactly():
+    """One update on a fixed batch: the same losses and gradients to float32 rounding; and two oneDNN
+    agents fed the same batches stay bit-identical (what exact resume needs)."""
+    g = torch.Generator().manual_seed(0)
+    batches = [_batch(g) for _ in range(3)]
+    agents = {m: DDPGAgent(25, 3, 3, generator=torch.Generator().manual_seed(1), matmul=m) for m in ("default", "onednn")}
+    assert any(isinstance(m, OneDNNLinear) for m in agents["onednn"].loss_module.modules())
+    assert not any(isinstance(m, OneDNNLinear) for m in agents["default"].loss_module.modules())
+    for agent in agents.values():
+        agent.update_normalizer(batches[0]["observation"], batches[0]["desired_goal"])
+    grads = {}
+    for name, agent in agents.items():
+        loss = agent.loss_module
+        out = loss.losses(*loss.inputs(batches[0]))
+        (out[0] + out[1]).backward()
+        grads[name] = [p.grad.clone() for p in loss.parameters() if p.grad is not None]
+        for p in loss.parameters():
+            p.grad = None
+    assert len(grads["default"]) == len(grads["onednn"]) == 16
+    for a, b in zip(grads["default"], grads["onednn"]):
+        assert (a - b).abs().max() <= 1e-5 * a.abs().max()
+
+    twin = copy.deepcopy(agents["onednn"])
+    for batch in batches:
+        assert agents["onednn"].update(batch) == twin.update(batch)
+    for a, b in zip(agents["onednn"].loss_module.parameters(), twin.loss_module.parameters()):
+        assert torch.equal(a, b)
+
+
+@needs_onednn
+def test_load_policy_takes_the_backend_and_the_state_loads_under_either():
+    agent = DDPGAgent(25, 3, 3, generator=torch.Generator().manual_seed(1), matmul="onednn")
+    state = agent.policy_state()
+    fast, plain = load_policy(state, "onednn"), load_policy(state, "default")
+    assert any(isinstance(m, OneDNNLinear) for m in fast.modules())
+    assert not any(isinstance(m, OneDNNLinear) for m in plain.modules())
+    obs, goal = torch.randn(256, 25), torch.randn(256, 3)
+    with torch.no_grad():
+        torch.testing.assert_close(fast(obs, goal), plain(obs, goal), rtol=1e-5, atol=1e-6)
