@@ -1,9 +1,9 @@
 """Linear layers whose CPU matrix products run on oneDNN: the speed device of the DDPG update.
 
 PyTorch computes a float32 :class:`torch.nn.Linear` on the CPU with its BLAS (MKL on x86). On
-the AMD EPYC cores this project runs on, MKL takes no AVX-512 path, and oneDNN's matmul runs the
-update's 256-wide layers about twice as fast (``python benchmarks/linear.py`` prints both, per
-layer shape and batch size; ``python benchmarks/agent_update.py --matmul`` the whole update).
+the AMD EPYC (AVX-512) cores this project runs on, oneDNN's matmul runs the update's 256-wide
+layers about twice as fast as MKL (``python benchmarks/linear.py`` prints both, per layer shape and
+batch size; ``python benchmarks/agent_update.py`` the whole update on each).
 
 :class:`OneDNNLinear` *is* an ``nn.Linear`` (same parameters, same state dict, same math): its
 forward and backward compute ``x·Wᵀ + b``, ``∂x = ∂y·W`` and ``∂W = ∂yᵀ·x`` with oneDNN for 2-D
@@ -35,13 +35,13 @@ MATMUL_BACKENDS = ("auto", "onednn", "default")
 
 MIN_BATCH = 64
 """Rows from which a batch goes to oneDNN: below it a call's fixed cost outweighs the faster kernel
-(``benchmarks/linear.py``: acting in one env, a 1-row product costs 3–10× as much on oneDNN; from 64
+(``benchmarks/linear.py``: acting in one env, a 1-row product costs 3–12× as much on oneDNN; from 64
 rows the hidden layers gain, at 256 every product of the input and hidden layers does)."""
 
 MIN_FEATURES = 16
 """Layers narrower than this on either side (the 1–4-wide output layers) stay on ``F.linear``: their
 products are too thin for oneDNN to gain (``benchmarks/linear.py``: 0.5–0.7× at 256 rows). The
-input layers (13–37 features wide) gain at 256 rows, and so does the whole update with them on
+input layers (observation, goal and, in the critic, action: 31 features on push_new) gain at 256 rows, and so does the whole update with them on
 oneDNN (``benchmarks/agent_update.py --min-features 64`` times it with the hidden layers alone)."""
 
 
