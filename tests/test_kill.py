@@ -21,6 +21,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from test_train import config, tiny  # noqa: E402
 
 from gchgg import checkpoint, train  # noqa: E402
+from gchgg.linear import onednn_available  # noqa: E402
 
 ITERATIONS = 8
 
@@ -158,3 +159,19 @@ def test_resuming_another_runs_checkpoint_is_refused_naming_the_difference(tmp_p
     train.run(config(base), run_dir)
     with pytest.raises(ValueError, match=f"another run .*{named}: checkpoint"):
         train.run(config([*base, override, "train.iterations=2", "resume=true"]), run_dir)
+
+
+ONEDNN = ("agent.hidden=[64,64]", "train.batch_size=64", "eval.episodes=64", "matmul=onednn")  # oneDNN engaged
+
+
+@pytest.mark.skipif(not onednn_available(), reason="this torch build has no oneDNN linear")
+def test_with_onednn_layers_a_killed_run_resumes_identically_and_background_evaluation_matches(tmp_path):
+    """The same guarantees with layers and batches wide enough for oneDNN (gchgg.linear), in the
+    updates, HGG's values and the 64-episode evaluations alike."""
+    whole_dir = tmp_path / "whole"
+    train.run(config([*overrides(tmp_path), *ONEDNN]), whole_dir)
+    whole = metrics(whole_dir)
+    assert kill_and_resume(tmp_path, "update", 7, ONEDNN).exists()
+    assert metrics(tmp_path / f"killed-update-7-{len(ONEDNN)}") == whole
+    train.run(config([*overrides(tmp_path), *ONEDNN, "eval.background=true"]), tmp_path / "background")
+    assert metrics(tmp_path / "background") == whole
