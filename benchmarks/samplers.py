@@ -15,7 +15,9 @@ Prints, in one run:
 * in a plain ``TensorDictReplayBuffer`` of 200,000 synthetic transitions (goals and targets uniform
   in push_new's goal field) with a Euclidean metric: ``sample()`` of 256 with K = 8 against uniform
   sampling, at one torch thread and at torch's default thread count, interleaved in one run
-  (target: <= 5x uniform at both).
+  (target: <= 5x uniform at both), and the same with goals and targets drawn from achieved goals
+  recorded in a push_new ``gchgg_code`` run (``benchmarks/data/push_new_achieved_goals.npy``):
+  clustered as an object mostly at rest leaves them, and as ``algo=gchgg_code`` scores them.
 
 Run: ``python benchmarks/samplers.py`` (``--episodes``, ``--rounds`` to change the sizes; ``--docs``
 writes the output into ``docs/benchmarks.md``).
@@ -27,10 +29,12 @@ import argparse
 import os
 import statistics
 import time
+from pathlib import Path
 
 os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
 os.environ.setdefault("MUJOCO_GL", "disable")
 
+import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer  # noqa: E402
@@ -45,6 +49,8 @@ from gchgg.samplers import (  # noqa: E402
     nearest_neighbour_distances,
 )
 from gchgg.transforms import EpisodeEnergy, HindsightRelabel  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 K_HER = 4
 BATCH = 256
@@ -207,12 +213,23 @@ def shortlist_check(storage, graph, generator: torch.Generator, draws: int = 20)
           f"(more pairs read); {mismatched} of {total:,} differ from the all-pairs value")
 
 
-def plain_buffer_speed(rounds: int, size: int = 200_000) -> None:
-    """Euclidean curriculum vs uniform in a plain TorchRL buffer, at one and at the default threads."""
+def recorded_achieved_goals(size: int, generator: torch.Generator) -> torch.Tensor:
+    """``size`` goals drawn (with replacement) from ``benchmarks/data/push_new_achieved_goals.npy``:
+    20,000 achieved goals drawn uniformly from the first 12 iterations of a push_new ``gchgg_code``
+    run (seed 1, commit a00f690), 815 of them distinct: an object mostly at rest repeats its position."""
+    achieved = torch.from_numpy(np.load(ROOT / "benchmarks" / "data" / "push_new_achieved_goals.npy"))
+    return achieved[torch.randint(len(achieved), (size,), generator=generator)]
+
+
+def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False) -> None:
+    """Euclidean curriculum vs uniform in a plain TorchRL buffer, at one and at the default threads;
+    goals uniform in push_new's goal field, or (``recorded``) a recorded buffer's achieved goals."""
     generator = torch.Generator().manual_seed(0)
     center, half = (torch.tensor(v) for v in envs.geometry("push_new").field)
 
     def goals() -> torch.Tensor:
+        if recorded:
+            return recorded_achieved_goals(size, generator)
         return center + (torch.rand(size, 3, generator=generator) * 2 - 1) * half
 
     data = TensorDict({
@@ -238,8 +255,9 @@ def plain_buffer_speed(rounds: int, size: int = 200_000) -> None:
                     buffer.sample()
                 times[name, threads].append((time.perf_counter() - start) / 48)
     torch.set_num_threads(1)
-    print(f"plain TensorDictReplayBuffer, {size:,} synthetic transitions, EuclideanMetric, sample() of {BATCH}, "
-          f"K=8, median of {rounds} interleaved rounds:")
+    kind = "a recorded buffer's achieved goals" if recorded else "goals uniform in the field"
+    print(f"plain TensorDictReplayBuffer, {size:,} synthetic transitions, {kind}, EuclideanMetric, sample() of "
+          f"{BATCH}, K=8, median of {rounds} interleaved rounds:")
     for threads in thread_counts:
         uniform = statistics.median(times["uniform", threads])
         curriculum = statistics.median(times["curriculum", threads])
@@ -252,12 +270,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=5000)
     parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument("--plain-only", action="store_true", help="only the plain-buffer (Euclidean) figures")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    graph = push_new_graph()
-    memory(graph)
-    speed(graph, args.episodes, args.rounds)
+    if not args.plain_only:
+        graph = push_new_graph()
+        memory(graph)
+        speed(graph, args.episodes, args.rounds)
     plain_buffer_speed(args.rounds)
+    plain_buffer_speed(args.rounds, recorded=True)
 
 
 if __name__ == "__main__":

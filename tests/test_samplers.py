@@ -200,6 +200,26 @@ def test_euclidean_nearest_neighbours_are_exact_at_any_scale_with_ties_and_dupli
         assert stats["rescored"] > 0  # the unproven goals' paths ran
 
 
+@pytest.mark.parametrize("block", [32, 6])
+def test_nearest_neighbours_are_exact_for_an_object_at_rest(graph, block):
+    """Achieved goals of early training: most at a few rest positions (exact repeats and copies
+    jittered by 1e-6 m), a few along 1 mm steps, some off the graph (parked together)."""
+    g = torch.Generator().manual_seed(3)
+    rest = torch.tensor([[0.5, 0.5, 0.0], [0.52, 0.5, 0.0], [-0.5, -0.6, 0.0]])
+    goals = rest[torch.randint(3, (4, 256), generator=g)]
+    goals[:, 100:160] += torch.randn(4, 60, 3, generator=g) * 1e-6  # jitter of a resting object
+    goals[:, 90:100] = rest[:, None].expand(3, 4, 3).reshape(12, 3)[:10] - 1e-6  # sorted just before a rest position
+    goals[:, 160:200] = torch.tensor([0.3, 0.2, 0.0]) + torch.arange(40).view(1, 40, 1) * torch.tensor([1e-3, 0.0, 0.0])
+    goals[:, 200:210] = torch.tensor([3.0, 0.0, 0.0])  # off the graph
+    goals = goals[:, torch.randperm(256, generator=g)]
+    for metric in (graph, EuclideanMetric()):
+        exact = brute_force_nearest(goals, metric)
+        fast = nearest_neighbour_distances(goals, metric, "auto", block=block)
+        assert torch.equal(torch.isinf(fast), torch.isinf(exact))
+        finite = torch.isfinite(exact)
+        torch.testing.assert_close(fast[finite], exact[finite], rtol=0, atol=1e-6)
+
+
 def test_off_graph_goals_never_make_nan(graph):
     data = goal_transitions(400)
     data["desired_goal"][::3] = torch.tensor([0.0, 0.0, 0.0])  # inside the wall: inf to everything

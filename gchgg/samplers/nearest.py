@@ -193,6 +193,16 @@ class NearestNeighbours:
         else:
             others = goals.gather(1, cols.reshape(k, b * m, 1).expand(k, b * m, goals.shape[-1])).view(k, b, m, -1)
             nearest = check_distances(self.metric.distance(goals.unsqueeze(2), others), "diversity metric").amin(-1)
+        # A goal at the position of the goal sorted before it (an object at rest repeats its position)
+        # is as far from every goal as that one: the pair is read (0 for any metric, inf off a graph),
+        # and later only the first goal of such a run is read as a candidate.
+        repeat = torch.zeros(k, b, dtype=torch.bool)
+        repeat[:, 1:] = (points[:, 1:, :3] == points[:, :-1, :3]).all(-1)
+        kk, ii = repeat.nonzero(as_tuple=True)
+        if len(kk):
+            twin = pair(ii, ii - 1, kk)
+            nearest = nearest.index_put((kk, ii), torch.minimum(nearest[kk, ii], twin))
+            nearest = nearest.index_put((kk, ii - 1), torch.minimum(nearest[kk, ii - 1], twin))
         # Proven where the shortlist beats every goal outside it (a distance of 0, a duplicate goal,
         # always does). For the others, only goals nearer in a straight line than the best distance
         # so far can be nearer: read those (usually a handful) from the metric too.
@@ -204,16 +214,20 @@ class NearestNeighbours:
         if bool(unproven.any()):
             # first the goals within two windows' reach in the sorted order (the nearest one is almost
             # always just outside the window), then, for the few still unproven, all of them
-            nearest, unproven = self._rescore(points, unproven, nearest, pair, 2 * self.span * self.block)
-        if bool(unproven.any()):
-            nearest, _ = self._rescore(points, unproven, nearest, pair, points.shape[1])
+            reach = 2 * self.span * self.block
+            nearest, unproven = self._rescore(points, repeat, unproven, nearest, pair, reach)
+            if bool(unproven.any()):
+                nearest, _ = self._rescore(points, repeat, unproven, nearest, pair, points.shape[1])
         return torch.empty_like(nearest).scatter_(1, order, nearest)
 
-    def _rescore(self, points: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair, reach: int):
+    def _rescore(
+        self, points: torch.Tensor, repeat: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair, reach: int
+    ):
         """The unproven goals' entries of ``nearest`` [K, B] read against every goal within ``reach`` sorted
-        positions either side that is nearer in a straight line than the best distance found. Returns
-        ``nearest`` and the goals still unproven (a goal beyond that range may be nearer; none when
-        ``reach >= B``)."""
+        positions either side that is nearer in a straight line than the best distance found, except
+        ``repeat`` ones (at the position of the goal before them, which is read instead; one beyond
+        the range leaves the goal unproven by the gap). Returns ``nearest`` and the goals still
+        unproven (a goal beyond that range may be nearer; none when ``reach >= B``)."""
         k, b = unproven.shape
         kk, ii = unproven.nonzero(as_tuple=True)  # [U]
         cols = (ii.unsqueeze(1) + torch.arange(-reach, reach + 1)).clamp_(0, b - 1)  # [U, W] sorted positions
@@ -224,7 +238,12 @@ class NearestNeighbours:
             term = plane.index_select(0, at).view(cols.shape).sub_(plane.index_select(0, own).unsqueeze(1)).square_()
             straight = term if straight is None else straight.add_(term)
         straight.sqrt_().sub_(self._tolerance()).masked_fill_(cols == ii.unsqueeze(1), math.inf)  # not itself
-        best = nearest[kk, ii]
+        straight.masked_fill_(repeat.view(-1).index_select(0, at).view(cols.shape), math.inf)
+        # First the straight-line nearest goal: for a metric close to the straight line its distance
+        # is (almost) the answer and leaves few goals to read below; clustered goals (an object at
+        # rest) would otherwise have most of the range read.
+        first = straight.argmin(-1, keepdim=True)
+        best = torch.minimum(nearest[kk, ii], pair(ii, cols.gather(1, first).squeeze(1), kk))
         uu, ww = (straight < best.unsqueeze(-1)).nonzero(as_tuple=True)
         if len(uu):
             best = best.scatter_reduce(0, uu, pair(ii[uu], cols[uu, ww], kk[uu]), reduce="amin")
