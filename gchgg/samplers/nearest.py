@@ -193,11 +193,14 @@ class NearestNeighbours:
         else:
             others = goals.gather(1, cols.reshape(k, b * m, 1).expand(k, b * m, goals.shape[-1])).view(k, b, m, -1)
             nearest = check_distances(self.metric.distance(goals.unsqueeze(2), others), "diversity metric").amin(-1)
-        # A goal at the position of the goal sorted before it (an object at rest repeats its position)
-        # is as far from every goal as that one: the pair is read (0 for any metric, inf off a graph),
+        # A goal equal to the goal sorted before it (an object at rest repeats its position; for a
+        # graph: at the same vertex) is as far from every goal as that one: the pair is read (0 for any metric, inf off a graph),
         # and later only the first goal of such a run is read as a candidate.
         repeat = torch.zeros(k, b, dtype=torch.bool)
-        repeat[:, 1:] = (points[:, 1:, :3] == points[:, :-1, :3]).all(-1)
+        if self._snap:  # the same vertex (or both off the graph): the same distances
+            repeat[:, 1:] = vertex[:, 1:] == vertex[:, :-1]
+        else:  # the same goal, bit for bit (points are rounded relative positions)
+            repeat[:, 1:] = (goals[:, 1:] == goals[:, :-1]).all(-1)
         kk, ii = repeat.nonzero(as_tuple=True)
         if len(kk):
             twin = pair(ii, ii - 1, kk)
