@@ -228,12 +228,15 @@ class NearestNeighbours:
     ):
         """The unproven goals' entries of ``nearest`` [K, B] read against every goal within ``reach`` sorted
         positions either side that is nearer in a straight line than the best distance found, except
-        ``repeat`` ones (at the position of the goal before them, which is read instead; one beyond
-        the range leaves the goal unproven by the gap). Returns ``nearest`` and the goals still
+        ``repeat`` ones (equal to the goal sorted before them, which is read instead; one beyond the
+        range leaves the goal unproven by the gap). Returns ``nearest`` and the goals still
         unproven (a goal beyond that range may be nearer; none when ``reach >= B``)."""
         k, b = unproven.shape
         kk, ii = unproven.nonzero(as_tuple=True)  # [U]
-        cols = (ii.unsqueeze(1) + torch.arange(-reach, reach + 1)).clamp_(0, b - 1)  # [U, W] sorted positions
+        if reach >= b - 1:  # every goal of the batch, once
+            cols = torch.arange(b).expand(len(ii), b)
+        else:  # [U, W] sorted positions
+            cols = (ii.unsqueeze(1) + torch.arange(-reach, reach + 1)).clamp_(0, b - 1)
         at = cols.add((kk * b).unsqueeze(1)).view(-1)
         own = kk * b + ii
         straight = None
