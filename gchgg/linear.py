@@ -96,7 +96,9 @@ class OneDNNLinear(nn.Linear):
             and x.dtype == self.weight.dtype == torch.float32
             and x.device.type == "cpu"
         ):
-            return _OneDNNLinearFunction.apply(x, self.weight, self.bias)
+            if torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad):
+                return _OneDNNLinearFunction.apply(x, self.weight, self.bias)
+            return _linear(x, self.weight, self.bias)  # nothing to differentiate: no autograd node
         return F.linear(x, self.weight, self.bias)
 
 
