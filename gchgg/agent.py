@@ -19,7 +19,7 @@ The agent follows the reference implementation's defaults (``REFERENCE.md``, "Tr
 optimisers, the target-update schedule, exploration, the value function HGG needs and a complete
 ``state_dict``. Its :meth:`DDPGAgent.update` reads the batch's tensors once and runs the loss's
 tensor path (``benchmarks/agent_update.py`` times it). Its ``matmul`` argument picks who computes
-the hidden layers' matrix products (:mod:`gchgg.linear`: oneDNN where torch has it); it changes
+the wide layers' matrix products (:mod:`gchgg.linear`: oneDNN where torch has it); it changes
 speed, not the math.
 """
 
@@ -498,7 +498,7 @@ class DDPGAgent:
         action_dim: action size.
         config: the hyperparameters (:class:`DDPGConfig`; default: the original code's).
         generator: draws the initial weights (``None``: torch's global generator).
-        matmul: who computes the hidden layers' products, one of :data:`gchgg.linear.MATMUL_BACKENDS`
+        matmul: who computes the wide layers' products, one of :data:`gchgg.linear.MATMUL_BACKENDS`
             (``"auto"``: oneDNN where this torch has it). Speed only: it is not a hyperparameter,
             is not saved, and a state loads under any backend.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).

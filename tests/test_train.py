@@ -165,6 +165,7 @@ def test_corrupt_checkpoint_is_an_error_that_says_so(tmp_path):
         ("agent.gamma=1.5", r"agent.gamma must be a number in \(0, 1\), got 1.5"),
         ("graph.n=[31,3,11]", "spacing"),
         ("graph.margin=-0.1", "margin"),
+        ("matmul=mkl", "matmul must be one of 'auto', 'onednn', 'default', got 'mkl'"),
     ],
 )
 def test_bad_configuration_fails_before_training_naming_the_setting(override, message, tmp_path):
