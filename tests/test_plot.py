@@ -51,9 +51,10 @@ def test_medians_quartiles_and_first_iterations(sweep):
     text = plot.table(groups, at=(1, 3))
     row = next(line for line in text.splitlines() if "| ghgg" in line)
     assert "| 3 | 2 [1.5, never] (2/3) | never [never, never] (1/3) | 0.20 [0.10, 0.35] | 0.70 [0.40, 0.82] |" in row
-    assert row.endswith("| — | — | 0.40 [0.35, 0.40] |")  # no HGG stop logged; hours: 4, 4, 3 rows of 360 s
+    assert row.endswith("| — | — | — | 0.40 [0.35, 0.40] |")  # no HGG stop logged; hours: 4, 4, 3 rows of 360 s
     gchgg = next(line for line in text.splitlines() if "gchgg, curriculum.scale=raw" in line)
-    assert "| 2 [2, 2] | 0.30 |" in gchgg  # HGG stop at iteration 2; diversity_decided averaged before it
+    # HGG stop at iteration 2, 0.9 first reached at 1 (before it); diversity_decided averaged before the stop
+    assert "| 2 [2, 2] | -1 [-1, -1] | 0.30 |" in gchgg
 
 
 def test_csv_files_group_by_name_and_the_cli_writes_figure_and_table(tmp_path, capsys):
