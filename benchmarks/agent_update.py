@@ -216,6 +216,21 @@ def _drift(a: DDPGAgent, b: DDPGAgent, batch) -> tuple[float, float]:
     return weights, actions
 
 
+def _alternate(first: DDPGAgent, second: DDPGAgent, batches, rounds: int, updates: int, between=None):
+    """Seconds per update of two agents over the same batches, in rounds that alternate which goes
+    first; ``between()`` runs after each round, untimed."""
+    times: tuple[list[float], list[float]] = ([], [])
+    for r in range(rounds):
+        for which, out in ((first, times[0]), (second, times[1]))[:: 1 if r % 2 else -1]:
+            start = time.perf_counter()
+            for i in range(updates):
+                which.update(batches[i % len(batches)])
+            out.append((time.perf_counter() - start) / updates)
+        if between is not None:
+            between()
+    return times
+
+
 def onednn_update(agent: DDPGAgent, onednn: DDPGAgent, batches, rounds: int, updates: int, min_features: int) -> None:
     """Today's update (torch BLAS) against the same agent with its layers on oneDNN, alternating
     rounds; their agreement on a fixed batch, and how far they drift apart beside a torch-BLAS twin fed
@@ -223,15 +238,8 @@ def onednn_update(agent: DDPGAgent, onednn: DDPGAgent, batches, rounds: int, upd
     loss_gap, grad_gap = _fixed_batch_agreement(agent, onednn, batches[0])
     twin = copy.deepcopy(agent)
     reversed_batches = [b[torch.arange(len(b) - 1, -1, -1)] for b in batches]
-    today, fast = [], []
-    for r in range(rounds):
-        for which, times in ((agent, today), (onednn, fast))[:: 1 if r % 2 else -1]:
-            start = time.perf_counter()
-            for i in range(updates):
-                which.update(batches[i % len(batches)])
-            times.append((time.perf_counter() - start) / updates)
-        for i in range(updates):
-            twin.update(reversed_batches[i % len(batches)])
+    today, fast = _alternate(agent, onednn, batches, rounds, updates,
+                             between=lambda: [twin.update(reversed_batches[i % len(batches)]) for i in range(updates)])
     print(f"oneDNN layers (matmul=onednn, layers >= {min_features} wide): {statistics.median(fast) * 1e3:.3f} ms/update against "
           f"{statistics.median(today) * 1e3:.3f} on torch BLAS: speed-up "
           f"{statistics.median(today) / statistics.median(fast):.2f}x (target >= 1.3)")
@@ -253,13 +261,7 @@ def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> Non
     candidate.update(batches[0])
     agent.update(batches[0])
     compile_seconds = time.perf_counter() - start
-    today, compiled = [], []
-    for r in range(rounds):
-        for which, times in ((agent, today), (candidate, compiled))[:: 1 if r % 2 else -1]:
-            start = time.perf_counter()
-            for i in range(updates):
-                which.update(batches[i % len(batches)])
-            times.append((time.perf_counter() - start) / updates)
+    today, compiled = _alternate(agent, candidate, batches, rounds, updates)
     drift = max((a - b).abs().max().item() for a, b in zip(agent.actor.parameters(), candidate.actor.parameters()))
     print(f"torch.compile of the loss: {compile_seconds:.0f} s to compile; {statistics.median(compiled) * 1e3:.3f} "
           f"ms/update against {statistics.median(today) * 1e3:.3f}: speed-up "

@@ -107,7 +107,7 @@ def check_config(cfg: DictConfig) -> None:
             f"got train.chunks={cfg.train.chunks} for train.episodes={cfg.train.episodes}"
         )
     check_choice("agent.normalizer_source", cfg.agent.normalizer_source, NORMALIZER_SOURCES)
-    check_choice("matmul", cfg.get("matmul", "auto"), MATMUL_BACKENDS)
+    check_choice("matmul", cfg.matmul, MATMUL_BACKENDS)
     if cfg.train.stop_success is not None:
         check_number("train.stop_success (a success rate, or null)", cfg.train.stop_success, low=0, high=1)
     if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
@@ -217,7 +217,7 @@ class Trainer:
             self.env.action_dim,
             agent_config(cfg),
             generator=torch.Generator().manual_seed(int(seeds[4])),
-            matmul=cfg.get("matmul", "auto"),
+            matmul=cfg.matmul,
         )
         self.goal_generator = None
         if algo.goal_generator != "none":
@@ -521,7 +521,7 @@ class Trainer:
         )
         if cfg.eval.get("background", False):
             self.evaluator = BackgroundEvaluator(
-                self.build_eval_env, self.steps, int(cfg.threads or torch.get_num_threads()), cfg.get("matmul", "auto")
+                self.build_eval_env, self.steps, int(cfg.threads or torch.get_num_threads()), cfg.matmul
             )
             for iteration, policy in sorted(self.eval_pending.items()):  # in flight when a resumed run was saved
                 self.submit_evaluation(iteration, policy=policy)
@@ -658,7 +658,7 @@ def versions() -> dict[str, str]:
 def startup_record(cfg: DictConfig) -> str:
     """The run's resolved settings and the installed versions, as logged once at start-up."""
     packages = ", ".join(f"{k} {v}" for k, v in versions().items())
-    matmul = cfg.get("matmul", "auto")
+    matmul = cfg.matmul
     return (
         f"versions: {packages}\nmatmul: {matmul} -> {resolve_matmul(matmul)}\n"
         f"resolved config:\n{OmegaConf.to_yaml(cfg, resolve=True)}"

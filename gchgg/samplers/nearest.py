@@ -194,8 +194,8 @@ class NearestNeighbours:
             others = goals.gather(1, cols.reshape(k, b * m, 1).expand(k, b * m, goals.shape[-1])).view(k, b, m, -1)
             nearest = check_distances(self.metric.distance(goals.unsqueeze(2), others), "diversity metric").amin(-1)
         # A goal equal to the goal sorted before it (an object at rest repeats its position; for a
-        # graph: at the same vertex) is as far from every goal as that one: the pair is read (0 for any metric, inf off a graph),
-        # and later only the first goal of such a run is read as a candidate.
+        # graph: at the same vertex) is as far from every goal as that one: the pair is read (0 for
+        # any metric, inf off a graph), and later only the first goal of such a run is a candidate.
         repeat = torch.zeros(k, b, dtype=torch.bool)
         if self._snap:  # the same vertex (or both off the graph): the same distances
             repeat[:, 1:] = vertex[:, 1:] == vertex[:, :-1]
@@ -249,7 +249,9 @@ class NearestNeighbours:
         # is (almost) the answer and leaves few goals to read below; clustered goals (an object at
         # rest) would otherwise have most of the range read.
         first = straight.argmin(-1, keepdim=True)
-        best = torch.minimum(nearest[kk, ii], pair(ii, cols.gather(1, first).squeeze(1), kk))
+        read = pair(ii, cols.gather(1, first).squeeze(1), kk)
+        # (a row with every candidate masked has nothing to read: its argmin may point at itself)
+        best = torch.where(straight.gather(1, first).squeeze(1).isfinite(), torch.minimum(nearest[kk, ii], read), nearest[kk, ii])
         uu, ww = (straight < best.unsqueeze(-1)).nonzero(as_tuple=True)
         if len(uu):
             best = best.scatter_reduce(0, uu, pair(ii[uu], cols[uu, ww], kk[uu]), reduce="amin")
