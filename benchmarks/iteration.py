@@ -2,21 +2,25 @@
 
 An iteration is 50 episodes of 100 steps (collected in ``train.chunks`` chunks), HER relabelling
 into the buffer, a normaliser update per chunk and 1,000 DDPG updates of 256 (plus goal generation
-for ghgg / gchgg); evaluation and checkpointing are timed apart (not included). After the last
-algorithm's iterations its buffer is filled to 5,000 episodes and one checkpoint is timed: seconds,
-bytes written and peak memory, against the full-buffer checkpoint written before December 2026.
-Last, wall-clock seconds per gchgg iteration with evaluation in-line, in the background process and
-without evaluation (``--overlap``). gchgg is also
-timed with C = 1, 5 and 50 chunks (C = 50 is the default, the original's per-episode loop; C = 1
-collects all episodes with one policy, then runs all updates), and the ratio C=50 / C=1 printed. The floor is the same work done bare, measured in the same run: 5,000
-raw dm_control ``Environment.step`` calls on one env and 1,000 plain-torch DDPG updates
-(``benchmarks/agent_update.py``'s ``BareDDPG``). Each algorithm first runs one untimed iteration
-(filling the buffer; the goal pool is filled with 1,000 synthetic trajectories beforehand), then ``--iterations`` timed ones; the median is printed.
+for ghgg / gchgg); evaluation and checkpointing are timed apart (not included). Each algorithm first
+runs one untimed iteration (filling the buffer; the goal pool is filled with 1,000 synthetic
+trajectories beforehand), then ``--iterations`` timed ones; the median is printed. The floor is the
+same work done bare, measured in the same run: 5,000 raw dm_control ``Environment.step`` calls on one
+env and 1,000 plain-torch DDPG updates (``benchmarks/agent_update.py``'s ``BareDDPG``).
+
+After the last algorithm's iterations its buffer is filled to 5,000 episodes and one checkpoint is
+timed: seconds, bytes written and peak memory, against the full-buffer checkpoint written before
+December 2026. gchgg is then timed with C = 1, 5 and 50 chunks (C = 50 is the default, the
+original's per-episode loop; C = 1 collects all episodes with one policy, then runs all updates), one
+trainer per C and their iterations in alternating rounds, and the ratio C=50 / C=1 printed. Last,
+wall-clock seconds per gchgg iteration with evaluation in-line, in the background process and
+without evaluation (``--overlap``).
 
 The networks' products run on ``--matmul`` (default ``auto``, the trainer's default: oneDNN where
 torch has it), the bare updates of the floor too.
 
-    python benchmarks/iteration.py [--iterations 2] [--updates 1000] [--threads 1] [--chunks 1 5 50] [--matmul auto]
+    python benchmarks/iteration.py [--iterations 3] [--updates 1000] [--threads 1] [--chunks 1 5 50]
+                                   [--matmul auto] [--overlap 3]
 """
 
 from __future__ import annotations
@@ -164,14 +168,9 @@ def trainer_rollout(trainer: Trainer):
     return rollout
 
 
-def iteration_seconds(
-    algo: str, iterations: int, updates: int, threads: int, chunks: int = 50, checkpoint_too: bool = False,
-    matmul: str = "auto",
-) -> tuple[float, dict[str, float]]:
-    """Median seconds per timed iteration of ``algo`` on push_new with ``chunks`` chunks, and the median per phase
-    (with ``checkpoint_too``, also :func:`checkpoint_cost` and its share of the iteration)."""
+def _config(algo: str, updates: int, threads: int, chunks: int, matmul: str):
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose(
+        return compose(
             "config",
             overrides=[
                 "env=push_new",
@@ -184,18 +183,49 @@ def iteration_seconds(
                 f"matmul={matmul}",
             ],
         )
+
+
+def _ready_trainer(algo: str, updates: int, threads: int, chunks: int, matmul: str, run_dir: str) -> Trainer:
+    """A trainer after one untimed iteration (its buffer filled; the goal pool filled first)."""
+    trainer = Trainer(_config(algo, updates, threads, chunks, matmul), Path(run_dir))
+    if trainer.goal_generator is not None:
+        fill_pool(trainer)
+    trainer.iteration_step()
+    return trainer
+
+
+def _medians(rows: list[dict]) -> tuple[float, dict[str, float]]:
+    phases = {p: statistics.median(r[f"seconds_{p}"] for r in rows) for p in PHASES}
+    return statistics.median(sum(r[f"seconds_{p}"] for p in PHASES) for r in rows), phases
+
+
+def iteration_seconds(
+    algo: str, iterations: int, updates: int, threads: int, chunks: int = 50, checkpoint_too: bool = False,
+    matmul: str = "auto",
+) -> tuple[float, dict[str, float]]:
+    """Median seconds per timed iteration of ``algo`` on push_new with ``chunks`` chunks, and the median per phase
+    (with ``checkpoint_too``, also :func:`checkpoint_cost` and its share of the iteration)."""
     with tempfile.TemporaryDirectory() as run_dir:
-        trainer = Trainer(cfg, Path(run_dir))
-        if trainer.goal_generator is not None:
-            fill_pool(trainer)
-        trainer.iteration_step()  # untimed: fills the buffer
-        rows = [trainer.iteration_step() for _ in range(iterations)]
-        phases = {p: statistics.median(r[f"seconds_{p}"] for r in rows) for p in PHASES}
-        total = statistics.median(sum(r[f"seconds_{p}"] for p in PHASES) for r in rows)
+        trainer = _ready_trainer(algo, updates, threads, chunks, matmul, run_dir)
+        total, phases = _medians([trainer.iteration_step() for _ in range(iterations)])
         if checkpoint_too:
             seconds = checkpoint_cost(trainer, Path(run_dir))
             print(f"  checkpoint / iteration = {seconds / total:.3f} (target <= 0.02)")
     return total, phases
+
+
+def chunk_seconds(
+    chunk_counts: list[int], iterations: int, updates: int, threads: int, matmul: str = "auto",
+) -> dict[int, tuple[float, dict[str, float]]]:
+    """Median seconds per gchgg iteration (and per phase) for each chunk count C, one trainer per C,
+    their iterations timed in alternating rounds so that a change of the machine's load hits all."""
+    rows: dict[int, list[dict]] = {c: [] for c in chunk_counts}
+    with tempfile.TemporaryDirectory() as run_dir:
+        trainers = {c: _ready_trainer("gchgg", updates, threads, c, matmul, f"{run_dir}/{c}") for c in chunk_counts}
+        for _ in range(iterations):
+            for c, trainer in trainers.items():
+                rows[c].append(trainer.iteration_step())
+    return {c: _medians(r) for c, r in rows.items()}
 
 
 def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str = "auto") -> None:
@@ -240,12 +270,14 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--iterations", type=int, default=2, help="timed iterations per algorithm")
+    parser.add_argument("--iterations", type=int, default=3, help="timed iterations per algorithm")
     parser.add_argument("--updates", type=int, default=1000, help="DDPG updates per iteration")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    parser.add_argument("--chunks", type=int, nargs="*", default=[1, 5, 50], help="chunk counts C timed for gchgg")
+    parser.add_argument("--chunks", type=int, nargs="*", default=[1, 5, 50],
+                        help="chunk counts C timed for gchgg")
     parser.add_argument("--algos", nargs="*", default=["her", "ghgg", "gchgg"], help="algorithms timed at C = 50")
-    parser.add_argument("--matmul", default="auto", choices=MATMUL_BACKENDS, help="the networks' products (gchgg.linear)")
+    parser.add_argument("--matmul", default="auto", choices=MATMUL_BACKENDS,
+                        help="the networks' products (gchgg.linear)")
     parser.add_argument("--overlap", type=int, default=3, metavar="N",
                         help="iterations timed with in-line, background and no evaluation (0: skip)")
     args = parser.parse_args()
@@ -266,17 +298,13 @@ def main() -> None:
         print(f"her / floor = {seconds['her'] / floor:.2f} (target <= 1.3)")
     if {"her", "gchgg"} <= set(seconds):
         print(f"gchgg / her = {seconds['gchgg'] / seconds['her']:.2f} (target <= 1.25; the paper: 179 s / 52 s = 3.4)")
-    by_chunks = {50: seconds["gchgg"]} if "gchgg" in seconds else {}
-    for chunks in args.chunks:
-        if chunks in by_chunks:
-            print(f"gchgg C={chunks:<3d} {by_chunks[chunks]:6.2f} s/iteration  (the gchgg line above)", flush=True)
-            continue
-        by_chunks[chunks], phases = iteration_seconds("gchgg", args.iterations, args.updates, args.threads, chunks,
-                                                      matmul=args.matmul)
+    by_chunks = chunk_seconds(args.chunks, args.iterations, args.updates, args.threads, args.matmul)
+    for chunks, (total, phases) in by_chunks.items():
         detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
-        print(f"gchgg C={chunks:<3d} {by_chunks[chunks]:6.2f} s/iteration  ({detail})", flush=True)
+        print(f"gchgg C={chunks:<3d} {total:6.2f} s/iteration  ({detail})", flush=True)
     if {1, 50} <= set(by_chunks):
-        print(f"gchgg C=50 / C=1 = {by_chunks[50] / by_chunks[1]:.2f} (target <= 1.2)")
+        print(f"gchgg C=50 / C=1 = {by_chunks[50][0] / by_chunks[1][0]:.2f} (target <= 1.2; the C lines timed "
+              "in alternating rounds)")
     if args.overlap:
         evaluation_overlap(args.overlap, args.updates, args.threads, args.matmul)
 

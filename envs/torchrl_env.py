@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -129,8 +131,7 @@ class KukaEnv(EnvBase):
             self._goal[i] = physics.target_position()
             task.observe_into(physics, self._observation[i], self._achieved[i])
             self._steps[i] = 0
-        truncated = torch.from_numpy(self._steps >= self.geometry.episode_length).unsqueeze(-1)
-        out = self._output(truncated)
+        out = self._output(self._truncated())
         if self.has_object:  # the state a reset can be given (see _make_specs), as the reset set it
             out["object_position"] = out["achieved_goal"].clone()
         return out
@@ -138,7 +139,12 @@ class KukaEnv(EnvBase):
     # -- step -------------------------------------------------------------------------------------
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action")
+        self._advance(tensordict.get("action"))
+        return self._output(self._truncated(), with_reward=True)
+
+    def _advance(self, action: torch.Tensor) -> None:
+        """One control step of every simulation under ``action`` ``[N, A]``; the observations and
+        achieved goals are then in ``self._observation`` and ``self._achieved``."""
         if action.shape != (self.num_envs, self.action_dim):
             raise ValueError(f"action must have shape [{self.num_envs}, {self.action_dim}] "
                              f"(num_envs, action size of {self.task_name!r}), got {list(action.shape)}")
@@ -148,8 +154,69 @@ class KukaEnv(EnvBase):
             physics.step(self._n_sub_steps)
             task.observe_into(physics, self._observation[i], self._achieved[i])
         self._steps += 1
-        truncated = torch.from_numpy(self._steps >= self.geometry.episode_length).unsqueeze(-1)
-        return self._output(truncated, with_reward=True)
+
+    def _truncated(self) -> torch.Tensor:
+        """``[N, 1]`` bool: the episode has reached the task's length T."""
+        return torch.from_numpy(self._steps >= self.geometry.episode_length).unsqueeze(-1)
+
+    # -- the speed device beside the TorchRL loop ---------------------------------------------------
+
+    def rollout_with(self, act: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], steps: int,
+                     start: TensorDictBase) -> TensorDict:
+        """``steps`` steps of every simulation under a plain-tensor policy, without a TensorDict per step.
+
+        Returns, value for value, what ``self.rollout(steps, policy, tensordict=start, auto_reset=False,
+        break_when_any_done=False)`` returns for the policy that writes ``action = act(observation,
+        desired_goal)``: ``[N, steps]``, time last, with the ``next`` entries, and ``start``'s other
+        keys (e.g. ``object_position``) carried along (``tests/test_env.py`` checks the equality).
+        The per-episode loop (``train.chunks = train.episodes``) steps a one-simulation env 5,000 times
+        an iteration, and there TorchRL's per-step TensorDict work costs as much as a third of the
+        physics (``python benchmarks/env_throughput.py`` prints both loops' steps per second).
+
+        Args:
+            act: ``act(observation [N, obs_dim], goal [N, 3]) -> action [N, A]``, once per step.
+            steps: number of steps.
+            start: the TensorDict ``reset`` returned (the state the simulations are in).
+        """
+        n, shape = self.num_envs, (steps + 1, self.num_envs)  # time first while stepping: contiguous rows
+        observation = torch.empty(*shape, self.obs_dim)
+        achieved, goal = torch.empty(*shape, 3), torch.empty(*shape, 3)
+        truncated = torch.empty(*shape, 1, dtype=torch.bool)
+        actions = []
+        observation[0], achieved[0] = start.get("observation"), start.get("achieved_goal")
+        goal[0], truncated[0] = start.get("desired_goal"), start.get("truncated")
+        for t in range(steps):
+            action = act(observation[t], goal[t])
+            self._advance(action)
+            actions.append(action)
+            observation[t + 1] = torch.from_numpy(self._observation)
+            achieved[t + 1] = torch.from_numpy(self._achieved)
+            goal[t + 1] = torch.from_numpy(self._goal)
+            truncated[t + 1] = self._truncated()
+        rewards = reward(achieved[1:], goal[1:], self.threshold).unsqueeze(-1)
+
+        def batch_first(x: torch.Tensor) -> torch.Tensor:  # [steps, N, ...] -> [N, steps, ...]
+            return x.transpose(0, 1).contiguous()
+
+        success = rewards == 0.0
+        after = {
+            "observation": observation[1:], "achieved_goal": achieved[1:], "desired_goal": goal[1:],
+            "is_success": success, "reward": rewards, "done": truncated[1:],
+            "terminated": torch.zeros_like(truncated[1:]), "truncated": truncated[1:],
+        }  # fmt: skip
+        before = {
+            "observation": observation[:-1], "achieved_goal": achieved[:-1], "desired_goal": goal[:-1],
+            "is_success": torch.cat([start.get("is_success").unsqueeze(0), success[:-1]]),
+            "done": torch.cat([start.get("done").unsqueeze(0), truncated[1:-1]]),
+            "terminated": torch.cat([start.get("terminated").unsqueeze(0), after["terminated"][:-1]]),
+            "truncated": truncated[:-1], "action": torch.stack(actions),
+        }  # fmt: skip
+        out = TensorDict({k: batch_first(v) for k, v in before.items()}, [n, steps], device=self.device)
+        out["next"] = TensorDict({k: batch_first(v) for k, v in after.items()}, [n, steps], device=self.device)
+        for key, value in start.items():  # state carried along unchanged (the object's start)
+            if key not in out.keys():
+                out[key] = value.unsqueeze(1).expand(n, steps, *value.shape[1:]).clone()
+        return out
 
     def _output(self, truncated: torch.Tensor, with_reward: bool = False) -> TensorDict:
         achieved = torch.from_numpy(self._achieved.copy())

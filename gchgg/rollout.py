@@ -3,12 +3,22 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Protocol, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
 
 ActFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+@runtime_checkable
+class RollsOutTensorPolicy(Protocol):
+    """An env that runs a plain-tensor policy's episodes itself (e.g. :class:`envs.torchrl_env.KukaEnv`):
+    ``rollout_with(act, steps, start)`` returns what ``env.rollout`` returns for the policy that writes
+    ``action = act(observation, desired_goal)``, without a TensorDict per step."""
+
+    def rollout_with(self, act: ActFn, steps: int, start: TensorDictBase) -> TensorDictBase: ...
 
 
 def collect(env: EnvBase, act: ActFn, steps: int, start: TensorDictBase) -> TensorDictBase:
@@ -23,8 +33,13 @@ def collect(env: EnvBase, act: ActFn, steps: int, start: TensorDictBase) -> Tens
         start: the TensorDict returned by ``env.reset(...)``.
 
     Returns:
-        The rollout TensorDict ``[N, T]`` (time last), with ``action`` and the ``next`` entries.
+        The rollout TensorDict ``[N, T]`` (time last), with ``action`` and the ``next`` entries: that of
+        ``env.rollout``, which computes it unless the env's class is a :class:`RollsOutTensorPolicy`
+        (checked on the class, so that a wrapper forwarding attributes to its base env, such as
+        ``TransformedEnv``, still steps through its transforms).
     """
+    if issubclass(type(env), RollsOutTensorPolicy):
+        return env.rollout_with(act, steps, start)
 
     def policy(td: TensorDictBase) -> TensorDictBase:
         return td.set("action", act(td.get("observation"), td.get("desired_goal")))

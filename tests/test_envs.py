@@ -237,6 +237,43 @@ def test_episodes_are_truncated_at_their_length(name):
 
 
 @pytest.mark.parametrize("name", TASKS)
+@pytest.mark.parametrize("num_envs", [1, 3])
+def test_rollout_with_a_tensor_policy_equals_the_torchrl_rollout(name, num_envs):
+    """The speed device: ``rollout_with`` returns env.rollout's TensorDict, value for value, and
+    leaves the simulations where env.rollout leaves them."""
+    noisy = lambda seed: torch.Generator().manual_seed(seed)  # noqa: E731
+
+    def act_with(generator):  # a stateful policy: the same draws in the same order on both paths
+        def act(observation, goal):
+            scale = (observation[:, :1] - goal[:, :1]).tanh()
+            return (torch.rand(len(observation), envs.make(name).action_dim, generator=generator) * 2 - 1) * scale
+        return act
+
+    runs = []
+    for fast in (False, True):
+        env = envs.make(name, num_envs=num_envs, seed=4)
+        goal = env.reset()["desired_goal"] + 0.01  # a reset given goals, as the trainer resets
+        start = env.reset(TensorDict({"desired_goal": goal}, batch_size=[num_envs]))
+        act, steps = act_with(noisy(7)), env.geometry.episode_length
+        if fast:
+            rollout = env.rollout_with(act, steps, start.clone())
+        else:
+            policy = lambda td: td.set("action", act(td["observation"], td["desired_goal"]))  # noqa: E731
+            rollout = env.rollout(steps, policy, tensordict=start.clone(), auto_reset=False, break_when_any_done=False)
+        after = env.step(TensorDict({"action": torch.zeros(num_envs, env.action_dim)}, [num_envs]))["next"]
+        runs.append((rollout, after))
+    (slow, slow_after), (fast, fast_after) = runs
+    assert fast.batch_size == slow.batch_size == torch.Size([num_envs, envs.geometry(name).episode_length])
+    assert set(fast.keys(True, True)) == set(slow.keys(True, True))
+    for key in slow.keys(True, True):
+        assert fast[key].dtype == slow[key].dtype, key
+        assert torch.equal(fast[key], slow[key]), key
+    assert fast["next", "truncated"][:, -1].all() and not fast["next", "truncated"][:, :-1].any()
+    for key in slow_after.keys(True, True):
+        assert torch.equal(fast_after[key], slow_after[key]), key
+
+
+@pytest.mark.parametrize("name", TASKS)
 def test_partial_reset_resets_only_the_marked_envs(name):
     env = envs.make(name, num_envs=3, seed=0)
     td = env.reset()
