@@ -153,7 +153,7 @@ class KukaEnv(EnvBase):
             task.before_step(actions[i], physics)
             physics.step(self._n_sub_steps)
             task.observe_into(physics, self._observation[i], self._achieved[i])
-        self._steps += 1
+        np.add(self._steps, 1, out=self._steps)  # in place: assigning an attribute of an EnvBase is slow
 
     def _truncated(self) -> torch.Tensor:
         """``[N, 1]`` bool: the episode has reached the task's length T."""

@@ -580,21 +580,32 @@ class _IterationStats:
     }
 
     def __init__(self) -> None:
-        self.success, self.distance, self.off_table = [], [], []
+        self.success, self.distance, self.off_table, self.motion = [], [], [], []
         self.trajectories, self.first_observations = [], []
         self.losses: dict[str, list[float]] = {}
         self.clipped: list[torch.Tensor] = []
         self.curriculum: dict[str, list[torch.Tensor]] = {}
 
+    MOTION = {  # column -> (what of the object's displacement from its start, threshold in metres)
+        "object_moved": ("distance", 0.01),
+        "object_rose_2cm": ("height", 0.02),
+        "object_rose_10cm": ("height", 0.10),
+    }
+    """Per training episode, at any of its steps (the thresholds of ``docs/learnability.py``)."""
+
     def add_episodes(self, rollout, geometry, achieved_key: str = "achieved_goal") -> None:
-        """Training success, final distance, object off the table and the trajectories, from the
-        (true) achieved goals under ``achieved_key``."""
+        """Training success, final distance, object off the table, how far the object moved and rose,
+        and the trajectories, from the (true) achieved goals under ``achieved_key``."""
         final = rollout["next", achieved_key][:, -1]
         self.success.append(rollout["next", "is_success"][:, -1].float().reshape(-1))
         self.distance.append(torch.linalg.vector_norm(final - rollout["desired_goal"][:, -1], dim=-1))
+        trajectory = torch.cat([rollout[achieved_key][:, :1], rollout["next", achieved_key]], dim=1)
         if geometry is not None:
             self.off_table.append(geometry.below_table(final).float())
-        self.trajectories.append(torch.cat([rollout[achieved_key][:, :1], rollout["next", achieved_key]], dim=1))
+            shift = trajectory - trajectory[:, :1]
+            furthest = {"distance": torch.linalg.vector_norm(shift, dim=-1).amax(1), "height": shift[..., 2].amax(1)}
+            self.motion.append(torch.stack([furthest[what] > limit for what, limit in self.MOTION.values()], -1))
+        self.trajectories.append(trajectory)
         self.first_observations.append(rollout["observation"][:, 0])
 
     def add_update(self, losses: dict[str, float], batch, agent: DDPGAgent) -> None:
@@ -618,6 +629,7 @@ class _IterationStats:
         }
         if self.off_table:
             row["object_off_table"] = float(torch.cat(self.off_table).mean())
+            row.update(zip(self.MOTION, torch.cat(self.motion).float().mean(0).tolist()))
         row.update({key: float(np.mean(values)) for key, values in self.losses.items()})
         if self.clipped:
             observation, goal = torch.stack(self.clipped).mean(0).tolist()

@@ -229,3 +229,42 @@ def test_hggs_stop_switches_the_curriculum_to_plain_sampling_and_survives_resume
     resumed = trainer(tmp_path, "train.iterations=3", task="reach", algo="gchgg")
     resumed.load_state_dict(t.state_dict())
     assert resumed.goal_generator.stopped and resumed.sampler.num_candidates == 1
+
+
+def test_episode_diagnostics_count_the_objects_that_moved_rose_and_fell():
+    """Four hand-made episodes of pick_no_obstacle (table top z = 1.0): one still, one pushed 2 cm, one
+    lifted 5 cm, one lifted 12 cm and then dropped off the table; two of the four succeed."""
+    from tensordict import TensorDict
+
+    import envs
+    from gchgg.train import _IterationStats
+
+    start = torch.tensor([0.75, 0.2, 1.015])
+    path = torch.zeros(4, 4, 3)  # displacement of each episode's object at steps 0..3
+    path[1, 2:, 1] = 0.02  # pushed along y
+    path[2, 1:, 2] = 0.05  # lifted 5 cm
+    path[3, 1, 2], path[3, 2, 2], path[3, 3, 2] = 0.12, 0.0, -0.1  # up 12 cm, back, down below the table top
+    achieved = start + path
+    goal = start + torch.tensor([0.0, 0.0, 0.05])
+    rollout = TensorDict(
+        {
+            "achieved_goal": achieved[:, :-1],
+            "desired_goal": goal.expand(4, 3, 3),
+            "observation": torch.zeros(4, 3, 25),
+            "next": {
+                "achieved_goal": achieved[:, 1:],
+                "is_success": torch.tensor([False, False, True, True]).view(4, 1, 1).expand(4, 3, 1),
+            },
+        },
+        batch_size=[4, 3],
+    )
+    stats = _IterationStats()
+    stats.add_episodes(rollout, envs.geometry("pick_no_obstacle"))
+    row = stats.row()
+    assert row["object_moved"] == 0.75  # all but the still one: > 1 cm at some step
+    assert row["object_rose_2cm"] == 0.5  # the 5 cm and the 12 cm lifts
+    assert row["object_rose_10cm"] == 0.25
+    assert row["object_off_table"] == 0.25  # the dropped one ends at z = 0.915 < 1.0
+    assert row["train_success_rate"] == 0.5
+    expected = torch.stack([(achieved[i, -1] - goal).norm() for i in range(4)]).mean()
+    assert math.isclose(row["train_final_distance"], float(expected), rel_tol=1e-6)

@@ -24,7 +24,7 @@ def expected_columns(task: str, algo: str) -> set[str]:
     columns = {"iteration", "success_rate", "env_steps", "warmup", "stopped", "loss_actor", "loss_value", *DIAGNOSTICS}
     columns |= {"pred_value", "target_value"}
     if task != "reach":
-        columns.add("object_off_table")
+        columns |= {"object_off_table", "object_moved", "object_rose_2cm", "object_rose_10cm"}
     if algo in ("hgg", "ghgg", "gchgg", "gchgg_code"):
         columns.add("d_g")
     if algo in ("cher", "gchgg", "gchgg_code"):
@@ -83,7 +83,8 @@ def test_every_algo_runs_on_every_task_through_the_entry_point(task, algo, tmp_p
         for key, text in r.items():
             value = float(text)
             assert value == value and abs(value) != float("inf"), (key, value)  # finite, never NaN
-        for key in ("train_success_rate", "observation_clipped", "goal_clipped", "object_off_table", "diversity_decided"):
+        for key in ("train_success_rate", "observation_clipped", "goal_clipped", "object_off_table", "object_moved",
+                    "object_rose_2cm", "object_rose_10cm", "diversity_decided"):
             assert key not in r or 0.0 <= float(r[key]) <= 1.0, (key, r[key])
     saved = (run_dir / "config.yaml").read_text()
     assert f"name: {task}" in saved and f"name: {algo}" in saved
