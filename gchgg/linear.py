@@ -88,13 +88,13 @@ class OneDNNLinear(nn.Linear):
     """
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if (  # the cheap tests first: acting in one env (1 row) leaves at the second
-            x.dim() == 2
+        if (
+            not (torch.jit.is_tracing() or torch.jit.is_scripting() or torch.compiler.is_compiling())
+            and not torch.onnx.is_in_onnx_export()
+            and x.dim() == 2
             and x.shape[0] >= MIN_BATCH
             and x.dtype == self.weight.dtype == torch.float32
             and x.device.type == "cpu"
-            and not (torch.jit.is_tracing() or torch.jit.is_scripting() or torch.compiler.is_compiling())
-            and not torch.onnx.is_in_onnx_export()
         ):
             if torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad):
                 return _OneDNNLinearFunction.apply(x, self.weight, self.bias)
