@@ -91,7 +91,7 @@ def evaluate_policy(
 
     import envs
     from gchgg.builders import make_observation_noise
-    from gchgg.rollout import collect
+    from gchgg.rollout import collect, fraction
 
     generator = torch.Generator().manual_seed(seed)
 
@@ -104,11 +104,11 @@ def evaluate_policy(
             env = TransformedEnv(env, make_observation_noise(envs.observation_layout(task), env.has_object, noise_std, generator))
         with torch.inference_mode():
             rollout = collect(env, actor, env.geometry.episode_length, env.reset())
-        successes.append(rollout["next", "is_success"][:, -1].float().reshape(-1))
+        successes.append(rollout["next", "is_success"][:, -1].reshape(-1))
         final = rollout["next", "true_achieved_goal" if noise_std else "achieved_goal"][:, -1]
         distances.append(torch.linalg.vector_norm(final - rollout["desired_goal"][:, -1], dim=-1))
         done, batch = done + n, batch + 1
-    return Evaluation(float(torch.cat(successes).mean()), float(torch.cat(distances).mean()), episodes)
+    return Evaluation(fraction(torch.cat(successes)), float(torch.cat(distances).mean()), episodes)
 
 
 def record(actor, task: str, path: str | Path, *, episodes: int = 1, seed: int = 0, camera: str = "front",

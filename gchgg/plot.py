@@ -70,9 +70,18 @@ def _flatten(tree: dict, prefix: str = "") -> dict[str, str]:
     return out
 
 
+FRACTIONS = ("success_rate", "train_success_rate", "object_off_table", "object_moved", "object_rose_2cm",
+             "object_rose_10cm")
+"""Columns that are fractions of episodes, read rounded to 6 decimals: runs before December 2026
+wrote them as float32 means, 90 of 100 as 0.8999999762, which must count as reaching 0.9."""
+
+
 def _read_rows(path: Path) -> list[dict[str, float]]:
+    def value(key: str, text: str) -> float:
+        return round(float(text), 6) if key in FRACTIONS else float(text)
+
     with open(path, newline="") as f:
-        rows = [{k: float(v) for k, v in row.items() if v not in ("", None)} for row in csv.DictReader(f)]
+        rows = [{k: value(k, v) for k, v in row.items() if v not in ("", None)} for row in csv.DictReader(f)]
     if not rows or "success_rate" not in rows[0]:
         raise ValueError(f"{path} is not a metrics.csv of a training run (no rows, or no success_rate column)")
     return rows

@@ -47,6 +47,14 @@ def collect(env: EnvBase, act: ActFn, steps: int, start: TensorDictBase) -> Tens
     return env.rollout(steps, policy, tensordict=start, auto_reset=False, break_when_any_done=False)
 
 
+def fraction(mask: torch.Tensor, dim: int | None = None) -> float | list[float]:
+    """The fraction of True entries of a boolean ``mask`` (over ``dim`` if given), as the exact
+    ratio of counts: 90 of 100 is 0.9, which a float32 mean would make 0.8999999762 (< 0.9)."""
+    if dim is None:
+        return int(mask.sum()) / mask.numel()
+    return [int(count) / mask.shape[dim] for count in mask.sum(dim).reshape(-1)]
+
+
 def evaluate(env: EnvBase, act: ActFn, steps: int) -> float:
     """Success rate of ``act`` over one episode per simulation of ``env``, on the task's own goals.
 
@@ -54,4 +62,4 @@ def evaluate(env: EnvBase, act: ActFn, steps: int) -> float:
     """
     with torch.inference_mode():
         rollout = collect(env, act, steps, env.reset())
-    return rollout["next", "is_success"][:, -1].float().mean().item()
+    return fraction(rollout["next", "is_success"][:, -1])

@@ -60,7 +60,7 @@ from gchgg.evaluator import BackgroundEvaluator, env_state  # noqa: E402
 from gchgg.hgg import estimate_max_distance  # noqa: E402
 from gchgg.linear import MATMUL_BACKENDS, resolve_matmul  # noqa: E402
 from gchgg.replay_log import ReplayLog  # noqa: E402
-from gchgg.rollout import collect, evaluate  # noqa: E402
+from gchgg.rollout import collect, evaluate, fraction  # noqa: E402
 from gchgg.validation import check_choice, check_number  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -597,11 +597,11 @@ class _IterationStats:
         """Training success, final distance, object off the table, how far the object moved and rose,
         and the trajectories, from the (true) achieved goals under ``achieved_key``."""
         final = rollout["next", achieved_key][:, -1]
-        self.success.append(rollout["next", "is_success"][:, -1].float().reshape(-1))
+        self.success.append(rollout["next", "is_success"][:, -1].reshape(-1))
         self.distance.append(torch.linalg.vector_norm(final - rollout["desired_goal"][:, -1], dim=-1))
         trajectory = torch.cat([rollout[achieved_key][:, :1], rollout["next", achieved_key]], dim=1)
         if geometry is not None:
-            self.off_table.append(geometry.below_table(final).float())
+            self.off_table.append(geometry.below_table(final))
             shift = trajectory - trajectory[:, :1]
             furthest = {"distance": torch.linalg.vector_norm(shift, dim=-1).amax(1), "height": shift[..., 2].amax(1)}
             self.motion.append(torch.stack([furthest[what] > limit for what, limit in self.MOTION.values()], -1))
@@ -624,12 +624,12 @@ class _IterationStats:
 
     def row(self) -> dict[str, float]:
         row = {
-            "train_success_rate": float(torch.cat(self.success).mean()),
+            "train_success_rate": fraction(torch.cat(self.success)),
             "train_final_distance": float(torch.cat(self.distance).mean()),
         }
         if self.off_table:
-            row["object_off_table"] = float(torch.cat(self.off_table).mean())
-            row.update(zip(self.MOTION, torch.cat(self.motion).float().mean(0).tolist()))
+            row["object_off_table"] = fraction(torch.cat(self.off_table))
+            row.update(zip(self.MOTION, fraction(torch.cat(self.motion), dim=0)))
         row.update({key: float(np.mean(values)) for key, values in self.losses.items()})
         if self.clipped:
             observation, goal = torch.stack(self.clipped).mean(0).tolist()

@@ -268,3 +268,14 @@ def test_episode_diagnostics_count_the_objects_that_moved_rose_and_fell():
     assert row["train_success_rate"] == 0.5
     expected = torch.stack([(achieved[i, -1] - goal).norm() for i in range(4)]).mean()
     assert math.isclose(row["train_final_distance"], float(expected), rel_tol=1e-6)
+
+
+def test_fractions_of_episodes_are_exact_ratios():
+    """A success rate of 90 of 100 episodes is 0.9, not float32's 0.8999999762, so that it reaches
+    train.stop_success=0.9 and the plot's "first ≥ 0.9"."""
+    from gchgg.rollout import fraction
+
+    mask = torch.arange(100) < 90
+    assert fraction(mask) == 0.9 and mask.float().mean().item() < 0.9
+    grid = torch.stack([torch.arange(100) < 90, torch.arange(100) < 30], dim=-1)  # [100, 2]
+    assert fraction(grid, dim=0) == [0.9, 0.3]

@@ -72,3 +72,16 @@ def test_csv_files_group_by_name_and_the_cli_writes_figure_and_table(tmp_path, c
 def test_a_folder_without_runs_is_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="no metrics.csv under"):
         plot.find_runs([tmp_path])
+
+
+def test_a_success_rate_of_exactly_90_of_100_reaches_0_9(tmp_path):
+    """Runs before December 2026 wrote success rates as float32 means: 90 of 100 as 0.8999999762."""
+    import torch
+
+    as_float32 = torch.ones(100, dtype=torch.bool)
+    as_float32[:10] = False
+    written = as_float32.float().mean().item()
+    assert written < 0.9  # the old value, below the threshold it stands for
+    make_run(tmp_path / "old", "ghgg", 0, [0.5, written, 0.95])
+    (run,) = plot.find_runs([tmp_path])
+    assert plot.first_at(run, 0.9) == 1
