@@ -1,6 +1,6 @@
 """Curves and tables over seeds: median and interquartile range of a metric per group of runs.
 
-    python -m gchgg.plot RUN_OR_SWEEP_OR_CSV... [--out FIG.png] [--table TABLE.md] [--y success_rate]
+    python -m gchgg.plot RUN_OR_SWEEP_OR_CSV... [--out FIG.png] [--table TABLE.md] [--y COLUMN...]
 
 Each argument is a run folder (``metrics.csv`` and the ``config.yaml`` the trainer saves), a folder
 holding such runs at any depth (a sweep), or a ``metrics.csv``-style file. Runs are grouped by task
@@ -10,10 +10,12 @@ suffix and its task is its folder's name (``docs/results/push_new/gchgg-seed0.cs
 ``push_new``, group ``gchgg``). A run that stopped early
 (``train.stop_success``) holds its last value to the longest run's end.
 
-The figure has one panel per task and a median line with an interquartile band per group (Fig. 5
-of the paper). The table (Markdown) gives per group: runs, iterations to the first success rate
-≥ 0.5 and ≥ 0.9 (median [IQR] over runs; a run that never got there counts as never, and the
-table says how many did), success at chosen iterations and at the end, a run's last iteration,
+The figure has one panel per task and per ``--y`` column (rows: columns; default: the success rate)
+and a median line with an interquartile band per group (Fig. 5 of the paper). ``--y d_g
+train_success_rate object_rose_10cm`` draws a run's diagnostics beside its success. The table
+(Markdown) gives per group: runs, iterations to the first success rate ≥ 0.5 and ≥ 0.9 (median
+[IQR] over runs; a run that never got there counts as never, and the table says how many did), each
+``--y`` column at chosen iterations and at the end, a run's last iteration,
 the iteration HGG's stop condition switched it to target goals (``stopped``), the iterations from
 that stop to the first success ≥ 0.9 (after the stop the curriculum samples plainly, so every HGG
 variant trains the same way from there), the mean
@@ -150,12 +152,14 @@ def group_runs(runs: Sequence[Run]) -> dict[tuple[str, str], list[Run]]:
 
 
 def iqr(values: Sequence[float]) -> tuple[float, float, float]:
-    """``(median, first quartile, third quartile)`` (linear interpolation; ``inf`` allowed).
+    """``(median, first quartile, third quartile)`` (linear interpolation; ``inf`` allowed; NaN values,
+    runs that did not log a column, are left out).
 
-    >>> iqr([1.0, 2.0, 3.0, 4.0])
+    >>> iqr([1.0, 2.0, 3.0, 4.0, float("nan")])
     (2.5, 1.75, 3.25)
     """
-    values = np.sort(np.asarray(values, dtype=float))
+    values = np.asarray(values, dtype=float)
+    values = np.sort(values[~np.isnan(values)])
     if len(values) == 0:
         return (math.nan,) * 3
     q = []
@@ -197,28 +201,33 @@ def _fmt(stats: tuple[float, float, float], digits: int | None = None) -> str:
     return f"{one(median)} [{one(low)}, {one(high)}]"
 
 
-def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150), column: str = "success_rate") -> str:
-    """A Markdown table per group: runs, iterations to ≥ 0.5 / ≥ 0.9, success at ``at`` and at the end, ..."""
-    head = ["task", "group", "runs", "first ≥ 0.5", "first ≥ 0.9", *(f"{column} at {i}" for i in at)]
-    head += [f"final {column}", "last iteration", "HGG stop", "first ≥ 0.9 − HGG stop",
-             "diversity decided (before the stop)", "hours"]  # fmt: skip
+def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150),
+          column: str | Sequence[str] = "success_rate") -> str:
+    """A Markdown table per group: runs, iterations to success ≥ 0.5 / ≥ 0.9, each of ``column`` at ``at``
+    and at the end, ... (the thresholds are on ``success_rate`` whatever ``column`` is)."""
+    columns = [column] if isinstance(column, str) else list(column)
+    head = ["task", "group", "runs", "first ≥ 0.5", "first ≥ 0.9"]
+    for name in columns:
+        head += [*(f"{name} at {i}" for i in at), f"final {name}"]
+    head += ["last iteration", "HGG stop", "first ≥ 0.9 − HGG stop", "diversity decided (before the stop)", "hours"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for (task, label), runs in sorted(groups.items()):
-        reached = {t: [first_at(r, t, column) for r in runs] for t in (0.5, 0.9)}
+        reached = {t: [first_at(r, t) for r in runs] for t in (0.5, 0.9)}
         cells = [task, label, str(len(runs))]
         for t in (0.5, 0.9):
             n = sum(math.isfinite(v) for v in reached[t])
             cells.append(f"{_fmt(iqr(reached[t]))} ({n}/{len(runs)})")
-        values = curves(runs, column)
-        for i in at:
-            cells.append(_fmt(iqr(values[:, i]), 2) if i < values.shape[1] else "—")
-        cells.append(_fmt(iqr([r.column(column)[-1] for r in runs]), 2))
+        for name in columns:
+            values = curves(runs, name)
+            for i in at:
+                cells.append(_fmt(iqr(values[:, i]), 2) if i < values.shape[1] else "—")
+            cells.append(_fmt(iqr([r.column(name)[-1] for r in runs]), 2))
         cells.append(_fmt(iqr([r.rows[-1]["iteration"] for r in runs])))
         generated = [r for r in runs if "d_g" in r.rows[-1]]  # runs with a goal generator
         stops = [first_at(r, 1.0, "stopped") for r in generated]
         cells.append(f"{_fmt(iqr(stops))}" if stops else "—")
         # after the stop every HGG variant trains on target goals with plain sampling: how long that took
-        after = [first_at(r, 0.9, column) - stop for r, stop in zip(generated, stops) if math.isfinite(stop)]
+        after = [first_at(r, 0.9) - stop for r, stop in zip(generated, stops) if math.isfinite(stop)]
         cells.append(f"{_fmt(iqr(after))}" if after else "—")
         decided = [_while_curriculum(r, "diversity_decided") for r in runs if "diversity_decided" in r.rows[-1]]
         cells.append(f"{np.mean(decided):.2f}" if decided else "—")
@@ -236,29 +245,31 @@ def _while_curriculum(run: Run, column: str) -> float:
     return float(np.nanmean(values)) if len(values) else math.nan
 
 
-def plot(groups: dict[tuple[str, str], list[Run]], out: str | Path, column: str = "success_rate") -> None:
-    """One panel per task: median and interquartile band of ``column`` per group against iteration."""
+def plot(groups: dict[tuple[str, str], list[Run]], out: str | Path, column: str | Sequence[str] = "success_rate") -> None:
+    """One panel per task and column: median and interquartile band of the column per group against iteration."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    columns = [column] if isinstance(column, str) else list(column)
     tasks = sorted({task for task, _ in groups})
-    fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 4), squeeze=False)
-    for ax, task in zip(axes[0], tasks):
-        for (t, label), runs in sorted(groups.items()):
-            if t != task:
-                continue
-            values = curves(runs, column)
-            x = np.arange(values.shape[1])
-            stats = np.array([iqr(values[:, i]) for i in x])
-            (line,) = ax.plot(x, stats[:, 0], label=f"{label} (n={len(runs)})")
-            ax.fill_between(x, stats[:, 1], stats[:, 2], color=line.get_color(), alpha=0.2)
-        ax.set_title(task or "runs")
-        ax.set_xlabel("iteration")
-        ax.set_ylabel(column)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+    fig, axes = plt.subplots(len(columns), len(tasks), figsize=(5.5 * len(tasks), 4 * len(columns)), squeeze=False)
+    for row, name in zip(axes, columns):
+        for ax, task in zip(row, tasks):
+            for (t, label), runs in sorted(groups.items()):
+                if t != task:
+                    continue
+                values = curves(runs, name)
+                x = np.arange(values.shape[1])
+                stats = np.array([iqr(values[:, i]) for i in x])
+                (line,) = ax.plot(x, stats[:, 0], label=f"{label} (n={len(runs)})")
+                ax.fill_between(x, stats[:, 1], stats[:, 2], color=line.get_color(), alpha=0.2)
+            ax.set_title(task or "runs")
+            ax.set_xlabel("iteration")
+            ax.set_ylabel(name)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
@@ -269,10 +280,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("paths", nargs="+", help="run folders, sweep folders or metrics CSV files")
     parser.add_argument("--out", help="figure file (PNG, PDF, SVG)")
     parser.add_argument("--table", help="Markdown table file (printed either way)")
-    parser.add_argument("--y", default="success_rate", help="metric column to plot and tabulate")
+    parser.add_argument("--y", nargs="+", default=["success_rate"], metavar="COLUMN",
+                        help="metrics columns to plot (one row of panels each) and tabulate; default: success_rate")
     parser.add_argument("--at", type=int, nargs="*", default=[70, 100, 150], help="iterations the table reports")
     args = parser.parse_args(argv)
-    groups = group_runs(find_runs(args.paths))
+    runs = find_runs(args.paths)
+    logged = {key for run in runs for row in run.rows for key in row}
+    unknown = [name for name in args.y if name not in logged]
+    if unknown:
+        parser.error(f"--y {' '.join(unknown)}: no run logged {'these columns' if len(unknown) > 1 else 'this column'};"
+                     f" the runs' columns are {', '.join(sorted(logged))}")
+    groups = group_runs(runs)
     text = table(groups, args.at, args.y)
     print(text, end="")
     if args.table:

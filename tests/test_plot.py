@@ -85,3 +85,28 @@ def test_a_success_rate_of_exactly_90_of_100_reaches_0_9(tmp_path):
     make_run(tmp_path / "old", "ghgg", 0, [0.5, written, 0.95])
     (run,) = plot.find_runs([tmp_path])
     assert plot.first_at(run, 0.9) == 1
+
+
+def test_diagnostic_columns_are_tabulated_and_drawn_beside_success(sweep, capsys):
+    """``--y d_g``: the d_g column at the chosen iterations; the thresholds stay on the success rate."""
+    out = sweep / "diagnostics.png"
+    plot.main([str(sweep / "b0"), "--y", "success_rate", "d_g", "--at", "1", "--out", str(out)])
+    text = capsys.readouterr().out
+    head, _, row = text.splitlines()[:3]
+    cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|"))))
+    assert cells["first ≥ 0.5"] == "1 [1, 1] (1/1)"  # success 0.9 at 1, although d_g is 0.4 there
+    assert cells["success_rate at 1"] == "0.90 [0.90, 0.90]" and cells["final success_rate"] == "1.00 [1.00, 1.00]"
+    assert cells["d_g at 1"] == "0.40 [0.40, 0.40]" and cells["final d_g"] == "0.00 [0.00, 0.00]"
+    assert cells["first ≥ 0.9 − HGG stop"] == "-1 [-1, -1]"
+    import matplotlib.image
+
+    assert matplotlib.image.imread(out).shape[0] > 1.8 * 4 * 110  # two rows of panels, 4 inches each at 110 dpi
+
+
+def test_runs_without_a_column_are_left_out_of_its_statistics_and_an_unknown_column_is_an_error(sweep, capsys):
+    groups = plot.group_runs(plot.find_runs([sweep / "b0", sweep / "a0"]))
+    both = {"all": [run for runs in groups.values() for run in runs]}
+    assert plot.iqr(plot.curves(both["all"], "d_g")[:, 1]) == (0.4, 0.4, 0.4)  # a0 has no d_g: not a NaN median
+    with pytest.raises(SystemExit):
+        plot.main([str(sweep), "--y", "d_gg"])
+    assert "--y d_gg: no run logged this column; the runs' columns are d_g, diversity_decided" in capsys.readouterr().err
