@@ -198,7 +198,7 @@ def _fmt(stats: tuple[float, float, float], digits: int | None = None) -> str:
         return "—" if math.isnan(v) else (f"{v:g}" if digits is None else f"{v:.{digits}f}")
 
     median, low, high = stats
-    return f"{one(median)} [{one(low)}, {one(high)}]"
+    return "—" if math.isnan(median) else f"{one(median)} [{one(low)}, {one(high)}]"  # —: no run logged it
 
 
 def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150),
