@@ -10,6 +10,7 @@ Prints, in one run:
   seconds per ``buffer.sample()`` of 256 for uniform, EBP, graph curriculum (K = 8, EBP candidates,
   default ``draw_ahead=8``: averaged over the samples, as in training) and CHER greedy,
   each as a ratio to uniform (medians over interleaved rounds: the machine is shared and noisy);
+* the first EBP sample after a write of one episode: the written rows' energies read against all rows';
 * how often the curriculum's nearest-neighbour shortlist could not prove a goal's nearest neighbour
   (more pairs are then read), and that it always equals the all-pairs value;
 * in a plain ``TensorDictReplayBuffer`` of 200,000 synthetic transitions (goals and targets uniform
@@ -77,8 +78,9 @@ def memory(graph: GoalGraph) -> None:
     reserved = per_transition * rows  # LazyTensorStorage allocates every row of its capacity
     print(f"memory: one stored transition = {per_transition:.0f} bytes "
           f"({', '.join(sorted(str(k) for k in transitions.keys(True, True)))})")
-    # The curriculum sampler's per-row cache is sized to the storage's capacity at the first sample.
-    sampler = GraphCurriculumSampler(graph, 8)
+    # The curriculum sampler's per-row caches (with EBP candidates, as in training) are sized to the
+    # storage's capacity at the first sample.
+    sampler = GraphCurriculumSampler(graph, 8, energy_key="energy")
     sampler.sample(storage, BATCH)
     cache = sampler.cache_bytes
     print(f"memory: 10,000 push_new episodes x {K_HER + 1} x T={steps} = {rows:,} transitions "
@@ -193,7 +195,30 @@ def speed(graph: GoalGraph, episodes: int, rounds: int) -> None:
     per_iteration = ", ".join(f"{name.split(' (')[0]} {statistics.median(times[name]) * 1000:.1f} s"
                               for name in ("graph curriculum K=8", "CHER greedy (pool 5,000)"))
     print(f"  (per 1,000-update iteration: {per_iteration})")
+    ebp_after_a_write(storage, rounds)
     shortlist_check(storage, graph, generator)
+
+
+def ebp_after_a_write(storage: LazyTensorStorage, rounds: int, repeats: int = 10) -> None:
+    """The first EBP sample after one episode's rows are written (the training loop writes 50 a
+    iteration): reading only the written rows' energies against reading all rows' (a write given
+    as a slice, which the sampler cannot follow row by row; before Dec 2026 every write did that)."""
+    rows = (K_HER + 1) * envs.geometry("push_new").episode_length
+    sampler = EnergySampler("energy")
+    sampler._rng = torch.Generator().manual_seed(2)
+    sampler.sample(storage, BATCH)
+    times: dict[str, list[float]] = {"rows": [], "all": []}
+    for r in range(rounds):
+        for kind, written in (("rows", torch.arange(r * rows, (r + 1) * rows)), ("all", slice(r * rows, (r + 1) * rows))):
+            start = time.perf_counter()
+            for _ in range(repeats):
+                sampler.extend(written)
+                sampler.sample(storage, BATCH)
+            times[kind].append((time.perf_counter() - start) / repeats)
+    written_rows, all_rows = statistics.median(times["rows"]), statistics.median(times["all"])
+    print(f"EBP: first sample after a write of one episode ({rows} rows) into {len(storage):,}: {written_rows * 1e3:.2f} ms "
+          f"reading the written rows, {all_rows * 1e3:.2f} ms reading all rows ({all_rows / written_rows:.1f}x; "
+          f"x50 writes per iteration: {written_rows * 50:.2f} s against {all_rows * 50:.2f} s)")
 
 
 def shortlist_check(storage, graph, generator: torch.Generator, draws: int = 20) -> None:

@@ -100,6 +100,40 @@ def test_ebp_draw_is_the_inverse_cdf_of_the_rows_even_with_crowded_guide_bins():
     assert ((index >= 750) & (index < 755)).double().mean() > 0.99
 
 
+def test_ebp_follows_every_write_and_draws_as_a_sampler_built_afresh():
+    # The energies are copied once per written row; after wrapping, add, mark_update and a slice
+    # write, the draws equal those of a new sampler reading the whole storage, bit for bit.
+    g = torch.Generator().manual_seed(5)
+
+    def episodes(num: int) -> TensorDict:  # episodes of 10 rows sharing an energy, some of them 0
+        energy = (torch.rand(num, generator=g) * (torch.rand(num, generator=g) > 0.2)).repeat_interleave(10)
+        return goal_transitions(10 * num, energy=energy)
+
+    sampler = EnergySampler(epsilon=0.01)
+    buffer = make_buffer(sampler, episodes(20), size=500, batch=1000)
+
+    def check() -> None:
+        fresh = EnergySampler(epsilon=0.01)
+        fresh._rng = torch.Generator().manual_seed(11)
+        sampler._rng = torch.Generator().manual_seed(11)
+        assert torch.equal(sampler.draw(buffer.storage, 1000), fresh.draw(buffer.storage, 1000))
+
+    check()
+    buffer.extend(episodes(25))  # 450 rows: new rows read
+    check()
+    buffer.extend(episodes(10))  # wraps: rows 450..499 and 0..49 overwritten
+    check()
+    buffer.add(episodes(1)[0])  # one row
+    check()
+    buffer[torch.arange(100, 110)] = episodes(1)
+    sampler.mark_update(torch.arange(100, 110))
+    check()
+    buffer.storage.set(slice(200, 210), episodes(1))
+    sampler.mark_update(slice(200, 210))  # not row indices: everything is read again
+    check()
+    assert sampler.cache_bytes == 500 * 8  # a float64 per row of the capacity
+
+
 def test_ebp_rejects_negative_energy():
     buffer = make_buffer(EnergySampler(), goal_transitions(10, energy=-torch.ones(10)))
     with pytest.raises(ValueError, match="finite and >= 0"):

@@ -1,4 +1,4 @@
-"""Shared plumbing of the samplers: reading one field from a replay storage, the generator, state files."""
+"""Shared plumbing of the samplers: reading one field from a replay storage, per-row caches, the generator, state files."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from tensordict import NestedKey, is_tensor_collection
 from torchrl.data.replay_buffers.storages import Storage, TensorStorage
@@ -45,6 +46,56 @@ def read_field(storage: Storage, key: NestedKey, index: torch.Tensor | None, sam
     if not is_tensor_collection(data) or data.get(key, None) is None:
         _missing(data, key, sampler)
     return data.get(key)
+
+
+class WrittenRows:
+    """Which stored rows a sampler's per-row cache must (re)compute: those written since it last caught up.
+
+    The sampler calls :meth:`mark` from ``extend``/``add``/``mark_update`` with the written index,
+    and :meth:`take` before it reads its cache. ``take(n, size)`` returns the rows below ``n`` (the
+    storage's length) to recompute: rows rewritten since, and rows new to the storage; or ``None``
+    when the whole cache must be built anew (nothing cached yet, ``size`` (the cache's rows) below
+    ``n``, or a write given as something other than row indices, e.g. a slice).
+
+    >>> rows = WrittenRows()
+    >>> rows.take(4, size=10) is None  # the first time: build everything
+    True
+    >>> rows.mark(torch.tensor([1])); rows.current(6)
+    False
+    >>> rows.take(6, size=10).tolist()  # row 1 rewritten, rows 4 and 5 new
+    [1, 4, 5]
+    >>> rows.current(6)
+    True
+    """
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything: the next :meth:`take` asks for a full build."""
+        self._known, self._pending, self._all = 0, [], True
+
+    def mark(self, index) -> None:
+        """Rows just written: a row index, an integer tensor or array of them, or anything else (all rows)."""
+        if isinstance(index, (int, torch.Tensor, np.ndarray)) and not torch.as_tensor(index).is_floating_point():
+            self._pending.append(torch.as_tensor(index).reshape(-1).long())
+        else:
+            self.reset()
+
+    def current(self, n: int) -> bool:
+        """Whether a cache that caught up at the last :meth:`take` holds every row of a storage of length ``n``."""
+        return not self._all and not self._pending and n == self._known
+
+    def take(self, n: int, size: int) -> torch.Tensor | None:
+        """The rows to recompute now (``None``: all ``n``); afterwards the cache counts as current for ``n``."""
+        full = self._all or size < n
+        fresh = [] if full else [index[index < min(n, self._known)] for index in self._pending]
+        if not full and n > self._known:
+            fresh.append(torch.arange(self._known, n))
+        self._known, self._pending, self._all = n, [], False
+        if full:
+            return None
+        return torch.cat(fresh) if fresh else torch.empty(0, dtype=torch.long)
 
 
 def _missing(data: Any, key: NestedKey, sampler: object):

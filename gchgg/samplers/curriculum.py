@@ -11,14 +11,13 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 import torch
 from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
 from gchgg.graph import Metric
-from gchgg.samplers._storage import check_sampleable, dump_state, generator, load_state, read_field
+from gchgg.samplers._storage import WrittenRows, check_sampleable, dump_state, generator, load_state, read_field
 from gchgg.samplers.energy import EnergySampler
 from gchgg.samplers.nearest import POINT_SIZE, NearestNeighbours, check_distances
 from gchgg.samplers.tradeoff import Tradeoff, as_tradeoff
@@ -119,7 +118,8 @@ class GraphCurriculumSampler(Sampler):
     its goal-to-target distance are computed once, at the first ``sample`` after the row is written
     (rows the buffer reports through ``extend``/``add``/``mark_update``, and rows new to the
     storage), and kept in a float32 ``[n, 7]`` tensor (28 bytes per stored row; ``[n, 10]`` with
-    the goal itself for a diversity metric without a lattice, which reads goals); ``sample`` then
+    the goal itself for a diversity metric without a lattice, which reads goals; EBP candidates add
+    the energies' float64 copy, 8 bytes per row, see :class:`EnergySampler`); ``sample`` then
     reads neither goals nor targets from the storage and snaps no goal. Rows overwritten behind
     the sampler's back (TorchRL's ``buffer[index] = ...``, or another buffer writing into a full
     shared storage) keep stale entries until reported with ``sampler.mark_update(index)``.
@@ -218,18 +218,18 @@ class GraphCurriculumSampler(Sampler):
         self._energy = EnergySampler(energy_key) if energy_key is not None else None
         self._nearest = NearestNeighbours(self.diversity_metric, neighbours)
         self._width = _GOAL + (0 if self._nearest.snaps else 3)  # per-row cache columns
-        # Per stored row: goal vertex and goal-to-target distance, valid for rows < _known not in _pending.
+        # Per stored row: the goal's shortlist point and goal-to-target distance, valid as _written says.
         self._rows: torch.Tensor | None = None
-        self._known = 0
-        self._pending: list[torch.Tensor] = []
+        self._written = WrittenRows()
         self._pool: _Pool | None = None  # scored candidates of the next samples, dropped at every write
         self._saved_pool: dict | None = None  # a loaded state's pool, drawn again at the next sample
 
     @property
     def cache_bytes(self) -> int:
-        """Bytes of the per-row cache (28 per stored row, 40 for a diversity metric without a lattice; sized to
-        the storage's capacity at the first sample)."""
-        return 0 if self._rows is None else self._rows.numel() * self._rows.element_size()
+        """Bytes of the per-row caches, sized to the storage's capacity at the first sample: 28 per row (40
+        for a diversity metric without a lattice), and 8 more with EBP candidates (their energies)."""
+        rows = 0 if self._rows is None else self._rows.numel() * self._rows.element_size()
+        return rows + (0 if self._energy is None else self._energy.cache_bytes)
 
     def stop_curriculum(self) -> None:
         """From now on, plain sampling: one candidate per sample (EBP or uniform, as the candidates are
@@ -317,27 +317,19 @@ class GraphCurriculumSampler(Sampler):
     def _stored_rows(self, storage: Storage, index: torch.Tensor, n: int) -> torch.Tensor:
         """Cached ``[..., 7]`` of rows ``index``: the goal's shortlist point (see
         :meth:`NearestNeighbours.points`) and its goal-to-target distance, computed once per written row."""
-        if self._rows is None or n != self._known or self._pending:
+        if not self._written.current(n):
             self._refresh(storage, n)
         return self._rows.index_select(0, index.view(-1)).view(*index.shape, self._width)
 
     def _refresh(self, storage: Storage, n: int) -> None:
         """Compute the cache entries of rows written since the last sample (and of rows new to the storage)."""
-        cache = self._rows
-        fresh = [index[index < min(n, self._known)] for index in self._pending]
-        if cache is None or len(cache) < n:
-            size = max(n, int(getattr(storage, "max_size", n) or n))
-            grown = torch.empty(size, self._width)
-            if cache is not None:
-                grown[: self._known] = cache[: self._known]
-            cache, self._known = grown, 0
-            fresh = []
-        if n > self._known:
-            fresh.append(torch.arange(self._known, n))
-        self._rows, self._known, self._pending = cache, n, []
-        fresh = torch.cat(fresh) if fresh else torch.empty(0, dtype=torch.long)
+        fresh = self._written.take(n, 0 if self._rows is None else len(self._rows))
+        if fresh is None:  # everything: size the cache to the storage's capacity
+            self._rows = torch.empty(max(n, int(getattr(storage, "max_size", n) or n)), self._width)
+            fresh = torch.arange(n)
         if not len(fresh):
             return
+        cache = self._rows
         goals = read_field(storage, self.goal_key, fresh, self)
         targets = read_field(storage, self.target_key, fresh, self)
         diverse = goals if self.diversity_key == self.goal_key else read_field(storage, self.diversity_key, fresh, self)
@@ -350,12 +342,7 @@ class GraphCurriculumSampler(Sampler):
         """Mark (re)written rows: their cache entries are recomputed at the next sample, and candidates
         drawn before the write are dropped."""
         self._pool = self._saved_pool = None
-        if self._rows is None:
-            return
-        if isinstance(index, (int, torch.Tensor, np.ndarray)) and not torch.as_tensor(index).is_floating_point():
-            self._pending.append(torch.as_tensor(index).reshape(-1).long())
-        else:  # a slice or anything else: recompute everything
-            self._rows = None
+        self._written.mark(index)
 
     # Writes invalidate the EBP cache and the rows' cached vertices and distances.
     def extend(self, index: torch.Tensor) -> None:
@@ -374,7 +361,8 @@ class GraphCurriculumSampler(Sampler):
             self._energy.mark_update(index)
 
     def _empty(self) -> None:
-        self._rows, self._known, self._pending, self._pool, self._saved_pool = None, 0, [], None, None
+        self._rows = self._pool = self._saved_pool = None
+        self._written.reset()
         if self._energy is not None:
             self._energy._empty()
 

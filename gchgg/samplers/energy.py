@@ -12,7 +12,7 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
-from gchgg.samplers._storage import check_sampleable, dump_state, generator, load_state, read_field
+from gchgg.samplers._storage import WrittenRows, check_sampleable, dump_state, generator, load_state, read_field
 from gchgg.validation import check_number
 
 __all__ = ["EnergySampler"]
@@ -70,7 +70,9 @@ class EnergySampler(Sampler):
     cumulative energies are cached and rebuilt (O(n)) on the first ``sample`` after the buffer
     writes (``extend``/``add``), with a guide table (Chen & Asau's indexed search): each draw is
     then two table reads and two forward steps, O(1) (a binary search over the few draws whose
-    bin holds more than two run boundaries).
+    bin holds more than two run boundaries). The rows' energies are kept in a float64 copy (8 bytes
+    per row of the storage's capacity, :attr:`cache_bytes`): a rebuild reads from the storage only
+    the rows written since the last one (``benchmarks/samplers.py`` prints what that saves).
     Works before the storage is full (only the first ``len(storage)`` rows) and after it wraps.
 
     Args:
@@ -94,7 +96,14 @@ class EnergySampler(Sampler):
         check_number("epsilon", epsilon, low=0)
         self.energy_key = energy_key
         self.epsilon = float(epsilon)
-        self._cache: tuple[_Runs | None, int] | None = None  # the runs and len(storage) they were built for
+        self._energy: torch.Tensor | None = None  # float64 energy + epsilon per stored row, valid as _written says
+        self._written = WrittenRows()
+        self._cached_runs: _Runs | None = None  # valid while self._written.current(len(storage))
+
+    @property
+    def cache_bytes(self) -> int:
+        """Bytes of the per-row energy copy (8 per row of the storage's capacity, from the first sample)."""
+        return 0 if self._energy is None else self._energy.numel() * self._energy.element_size()
 
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         return self.draw(storage, batch_size), {}
@@ -125,31 +134,44 @@ class EnergySampler(Sampler):
         return start.add_(within).long()
 
     def _runs(self, storage: Storage, n: int) -> _Runs | None:
-        """The drawable runs (``None`` if no row has energy), rebuilt after writes."""
-        if self._cache is None or self._cache[1] != n:
-            energy = read_field(storage, self.energy_key, None, self).reshape(n, -1)
-            if energy.shape[1] != 1:
-                raise ValueError(
-                    f"{self.energy_key!r} must hold one energy per transition, got {energy.shape[1]} values per row"
-                )
-            energy = energy[:, 0].to(torch.float64)
-            if not torch.isfinite(energy).all() or (energy < 0).any():
-                raise ValueError(f"energies under {self.energy_key!r} must be finite and >= 0")
-            self._cache = (_Runs.of(energy + self.epsilon), n)
-        return self._cache[0]
+        """The drawable runs (``None`` if no row has energy), rebuilt after writes from the rows' energies,
+        of which only the rows written since the last rebuild are read from the storage."""
+        if self._written.current(n):
+            return self._cached_runs
+        rows = self._written.take(n, 0 if self._energy is None else len(self._energy))
+        if rows is None:  # everything: size the copy to the storage's capacity
+            self._energy = torch.empty(max(n, int(getattr(storage, "max_size", n) or n)), dtype=torch.float64)
+            self._energy[:n] = self._read(storage, None, n)
+        elif len(rows):
+            self._energy[rows] = self._read(storage, rows, len(rows))
+        self._cached_runs = _Runs.of(self._energy[:n])
+        return self._cached_runs
 
-    # Writes invalidate the cached cumulative energies.
+    def _read(self, storage: Storage, rows: torch.Tensor | None, count: int) -> torch.Tensor:
+        """``energy + epsilon`` (float64) of the stored ``rows`` (``None``: the first ``count``), checked."""
+        energy = read_field(storage, self.energy_key, rows, self).reshape(count, -1)
+        if energy.shape[1] != 1:
+            raise ValueError(
+                f"{self.energy_key!r} must hold one energy per transition, got {energy.shape[1]} values per row"
+            )
+        energy = energy[:, 0].to(torch.float64)
+        if not torch.isfinite(energy).all() or (energy < 0).any():
+            raise ValueError(f"energies under {self.energy_key!r} must be finite and >= 0")
+        return energy + self.epsilon
+
+    # Writes mark the rows whose energies are read again at the next rebuild of the runs.
     def extend(self, index: torch.Tensor) -> None:
-        self._cache = None
+        self._written.mark(index)
 
     def add(self, index: int) -> None:
-        self._cache = None
+        self._written.mark(index)
 
     def mark_update(self, index, *, storage: Storage | None = None) -> None:
-        self._cache = None
+        self._written.mark(index)
 
     def _empty(self) -> None:
-        self._cache = None
+        self._energy = self._cached_runs = None
+        self._written.reset()
 
     def state_dict(self) -> dict[str, Any]:
         return OrderedDict(energy_key=self.energy_key, epsilon=self.epsilon)
@@ -158,7 +180,7 @@ class EnergySampler(Sampler):
         key = state_dict["energy_key"]
         self.energy_key = tuple(key) if isinstance(key, list) else key
         self.epsilon = float(state_dict["epsilon"])
-        self._cache = None
+        self._written.reset()
 
     def dumps(self, path) -> None:
         dump_state(self.state_dict(), path)
