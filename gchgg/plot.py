@@ -201,11 +201,16 @@ def _fmt(stats: tuple[float, float, float], digits: int | None = None) -> str:
     return "—" if math.isnan(median) else f"{one(median)} [{one(low)}, {one(high)}]"  # —: no run logged it
 
 
+def _as_list(column: str | Sequence[str]) -> list[str]:
+    """One column name or several, as a list."""
+    return [column] if isinstance(column, str) else list(column)
+
+
 def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150),
           column: str | Sequence[str] = "success_rate") -> str:
     """A Markdown table per group: runs, iterations to success ≥ 0.5 / ≥ 0.9, each of ``column`` at ``at``
     and at the end, ... (the thresholds are on ``success_rate`` whatever ``column`` is)."""
-    columns = [column] if isinstance(column, str) else list(column)
+    columns = _as_list(column)
     head = ["task", "group", "runs", "first ≥ 0.5", "first ≥ 0.9"]
     for name in columns:
         head += [*(f"{name} at {i}" for i in at), f"final {name}"]
@@ -252,7 +257,7 @@ def plot(groups: dict[tuple[str, str], list[Run]], out: str | Path, column: str 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    columns = [column] if isinstance(column, str) else list(column)
+    columns = _as_list(column)
     tasks = sorted({task for task, _ in groups})
     fig, axes = plt.subplots(len(columns), len(tasks), figsize=(5.5 * len(tasks), 4 * len(columns)), squeeze=False)
     for row, name in zip(axes, columns):
