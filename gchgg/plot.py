@@ -209,7 +209,10 @@ def _as_list(column: str | Sequence[str]) -> list[str]:
 def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150),
           column: str | Sequence[str] = "success_rate") -> str:
     """A Markdown table per group: runs, iterations to success ≥ 0.5 / ≥ 0.9, each of ``column`` at ``at``
-    and at the end, ... (the thresholds are on ``success_rate`` whatever ``column`` is)."""
+    and at the end, ... (the thresholds are on ``success_rate`` whatever ``column`` is).
+
+    A run shorter than an ``at`` iteration (one stopped early, or ``at 300`` for a run of iterations
+    0–299) counts with its last value, as the curves hold it."""
     columns = _as_list(column)
     head = ["task", "group", "runs", "first ≥ 0.5", "first ≥ 0.9"]
     for name in columns:
@@ -224,8 +227,8 @@ def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100
             cells.append(f"{_fmt(iqr(reached[t]))} ({n}/{len(runs)})")
         for name in columns:
             values = curves(runs, name)
-            for i in at:
-                cells.append(_fmt(iqr(values[:, i]), 2) if i < values.shape[1] else "—")
+            for i in at:  # past the longest run's end: every run's last value, as the curves hold it
+                cells.append(_fmt(iqr(values[:, min(i, values.shape[1] - 1)]), 2))
             cells.append(_fmt(iqr([r.column(name)[-1] for r in runs]), 2))
         cells.append(_fmt(iqr([r.rows[-1]["iteration"] for r in runs])))
         generated = [r for r in runs if "d_g" in r.rows[-1]]  # runs with a goal generator
