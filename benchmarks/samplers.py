@@ -170,7 +170,7 @@ def speed(graph: GoalGraph, episodes: int, rounds: int) -> None:
                                      generator=torch.Generator().manual_seed(1))
         for name, sampler in samplers.items()
     }
-    repeats = {name: (2 if name.startswith("CHER") else 50) for name in buffers}
+    repeats = {name: (10 if name.startswith("CHER") else 50) for name in buffers}
     times: dict[str, list[float]] = {name: [] for name in buffers}
     alone: dict[str, list[float]] = {name: [] for name in buffers}  # the sampler's sample() without the row gather
     for name, buffer in buffers.items():  # warm-up (EBP cache, graph vertices)
@@ -195,8 +195,58 @@ def speed(graph: GoalGraph, episodes: int, rounds: int) -> None:
     per_iteration = ", ".join(f"{name.split(' (')[0]} {statistics.median(times[name]) * 1000:.1f} s"
                               for name in ("graph curriculum K=8", "CHER greedy (pool 5,000)"))
     print(f"  (per 1,000-update iteration: {per_iteration})")
+    cher_speed(storage, rounds)
     ebp_after_a_write(storage, rounds)
     shortlist_check(storage, graph, generator)
+
+
+def cher_speed(storage: LazyTensorStorage, rounds: int, pool: int = 5000, repeats: int = 10) -> None:
+    """CHER's ``buffer.sample()`` against uniform on the same buffer at one thread and at torch's
+    default, interleaved (target: <= 10x uniform at both), and where CHER's time goes at one thread."""
+    from gchgg.samplers._storage import read_field
+    from gchgg.samplers.cher import lazier_than_lazy_greedy, nearest_other
+
+    samplers = {"uniform": RandomSampler(), "CHER": CherSampler(pool_size=pool)}
+    buffers = {name: TensorDictReplayBuffer(storage=storage, sampler=sampler, batch_size=BATCH,
+                                            generator=torch.Generator().manual_seed(3))
+               for name, sampler in samplers.items()}  # fmt: skip
+    thread_counts = sorted({1, DEFAULT_THREADS})
+    times = {(name, t): [] for name in buffers for t in thread_counts}
+    parts: dict[str, list[float]] = {"pool": [], "graph": [], "greedy": []}
+    cher, rng, distinct = buffers["CHER"].sampler, torch.Generator().manual_seed(4), []
+    for _ in range(rounds):
+        for threads in thread_counts:
+            torch.set_num_threads(threads)
+            for name, buffer in buffers.items():
+                n = repeats if name == "CHER" else 10 * repeats
+                start = time.perf_counter()
+                for _ in range(n):
+                    buffer.sample()
+                times[name, threads].append((time.perf_counter() - start) / n)
+        torch.set_num_threads(1)
+        clock = time.perf_counter()
+        index = torch.randint(len(storage), (pool,), generator=rng)
+        goals, targets = (read_field(storage, key, index, cher) for key in (cher.goal_key, cher.target_key))
+        penalty = cher.metric.distance(goals, targets).to(torch.float32)
+        parts["pool"].append(time.perf_counter() - clock)
+        clock = time.perf_counter()
+        neighbour, similarity = cher.similarity_graph(goals)
+        parts["graph"].append(time.perf_counter() - clock)
+        clock = time.perf_counter()
+        lazier_than_lazy_greedy(neighbour, similarity, penalty, BATCH, cher.subset_size, rng)
+        parts["greedy"].append(time.perf_counter() - clock)
+        distinct.append(len(set(nearest_other(goals.double().numpy())[0].tolist())))
+    print(f"CHER (pool {pool:,}, k = 1, subsets of 3) against uniform, buffer.sample() of {BATCH} from the buffer above, "
+          f"median of {rounds} interleaved rounds:")
+    for threads in thread_counts:
+        uniform, seconds = (statistics.median(times[name, threads]) for name in ("uniform", "CHER"))
+        label = "default" if threads == DEFAULT_THREADS else "one"
+        print(f"  {threads} thread(s) ({label}): uniform {uniform * 1e3:.3f} ms, CHER {seconds * 1e3:.3f} ms "
+              f"= {seconds / uniform:.1f} x uniform (target <= 10)")
+    print("  where CHER's time goes (1 thread): "
+          + ", ".join(f"{label} {statistics.median(parts[key]) * 1e3:.2f} ms" for key, label in
+                      (("pool", "pool read + distances"), ("graph", "similarity graph"), ("greedy", "greedy choice")))
+          + f" (the pool's goals have {statistics.median(distinct):.0f} distinct nearest neighbours)")
 
 
 def ebp_after_a_write(storage: LazyTensorStorage, rounds: int, repeats: int = 10) -> None:
@@ -238,11 +288,14 @@ def shortlist_check(storage, graph, generator: torch.Generator, draws: int = 20)
           f"(more pairs read); {mismatched} of {total:,} differ from the all-pairs value")
 
 
+RECORDED_GOALS = ROOT / "benchmarks" / "data" / "push_new_achieved_goals.npy"
+
+
 def recorded_achieved_goals(size: int, generator: torch.Generator) -> torch.Tensor:
     """``size`` goals drawn (with replacement) from ``benchmarks/data/push_new_achieved_goals.npy``:
     20,000 achieved goals drawn uniformly from the first 12 iterations of a push_new ``gchgg_code``
     run (seed 1, commit a00f690), 815 of them distinct: an object mostly at rest repeats its position."""
-    achieved = torch.from_numpy(np.load(ROOT / "benchmarks" / "data" / "push_new_achieved_goals.npy"))
+    achieved = torch.from_numpy(np.load(RECORDED_GOALS))
     return achieved[torch.randint(len(achieved), (size,), generator=generator)]
 
 
@@ -296,14 +349,25 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=5000)
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--plain-only", action="store_true", help="only the plain-buffer (Euclidean) figures")
+    parser.add_argument("--cher-only", action="store_true", help="only CHER against uniform on the push_new buffer")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.cher_only:
+        storage = LazyTensorStorage(args.episodes * (K_HER + 1) * envs.geometry("push_new").episode_length)
+        fill(storage, args.episodes, envs.geometry("push_new").episode_length, torch.Generator().manual_seed(0))
+        print(f"buffer: {args.episodes:,} push_new-shaped episodes, {len(storage):,} transitions")
+        cher_speed(storage, args.rounds)
+        return
     if not args.plain_only:
         graph = push_new_graph()
         memory(graph)
         speed(graph, args.episodes, args.rounds)
     plain_buffer_speed(args.rounds)
-    plain_buffer_speed(args.rounds, recorded=True)
+    if RECORDED_GOALS.exists():
+        plain_buffer_speed(args.rounds, recorded=True)
+    else:  # a recorded run's file, not in git (*.npy is ignored)
+        print(f"plain buffer with a recorded buffer's achieved goals: skipped, {RECORDED_GOALS.relative_to(ROOT)} "
+              "is not in this checkout")
 
 
 if __name__ == "__main__":

@@ -323,6 +323,74 @@ def test_cher_similarity_graph_excludes_self_even_with_duplicates():
     torch.testing.assert_close(similarity[:, 0], torch.exp(-d**2 / d.mean() ** 2))
 
 
+def plain_greedy(neighbour, similarity, penalty, batch_size, subset_size, seed):
+    """CHER's lazier-than-lazy greedy as a plain loop: every step scans the whole pool for each candidate."""
+    g = torch.Generator().manual_seed(seed)
+    size, k = neighbour.shape
+    draws = torch.randint(size, (batch_size, 4 * subset_size), generator=g).tolist()
+    nb, sim, pen = neighbour.tolist(), similarity.double().tolist(), penalty.double().tolist()
+    cover, taken, chosen = [0.0] * size, set(), []
+    for row in draws:
+        subset = []
+        for c in row:
+            if c not in taken and c not in subset and len(subset) < subset_size:
+                subset.append(c)
+        if len(subset) < subset_size:
+            free = torch.tensor([0.0 if i in taken else 1.0 for i in range(size)])
+            subset = torch.multinomial(free, subset_size, replacement=False, generator=g).tolist()
+        best, best_score = None, None
+        for c in subset:
+            gain = 0.0
+            for v in range(size):
+                for j in range(k):
+                    if nb[v][j] == c:
+                        gain += max(0.0, sim[v][j] - cover[v])
+            if best is None or gain - pen[c] > best_score:
+                best, best_score = c, gain - pen[c]
+        for v in range(size):
+            for j in range(k):
+                if nb[v][j] == best:
+                    cover[v] = max(cover[v], sim[v][j])
+        taken.add(best)
+        chosen.append(best)
+    return chosen, cover
+
+
+@pytest.mark.parametrize("size, batch, k, lam", [(60, 20, 1, 0.0), (60, 58, 1, 1.0), (200, 64, 1, 0.3),
+                                                 (200, 64, 2, 0.3), (150, 148, 2, 0.0)])
+def test_cher_greedy_chooses_as_a_plain_loop(size, batch, k, lam):
+    """Same draws, same choices; the pool nearly used up (batch = size - 2) exercises the fallback draw."""
+    from gchgg.samplers.cher import lazier_than_lazy_greedy
+
+    for seed in range(3):
+        g = torch.Generator().manual_seed(seed)
+        goals = torch.rand(size, 3, generator=g).round(decimals=1)  # a coarse lattice: copies and ties
+        neighbour, similarity = CherSampler(neighbours=k).similarity_graph(goals)
+        penalty = lam * goals.norm(dim=-1)
+        expected, cover = plain_greedy(neighbour, similarity, penalty, batch, 3, seed)
+        for window in (1, 7, 64):
+            chosen, fast_cover = lazier_than_lazy_greedy(neighbour, similarity, penalty, batch, 3,
+                                                         torch.Generator().manual_seed(seed), window=window)
+            assert chosen.tolist() == expected, (seed, window)
+            assert fast_cover.tolist() == torch.tensor(cover, dtype=torch.float32).tolist()
+
+
+def test_cher_nearest_other_is_the_exact_nearest_neighbour():
+    from gchgg.samplers.cher import nearest_other
+
+    g = torch.Generator().manual_seed(0)
+    points = torch.cat([torch.rand(300, 3, generator=g), torch.full((40, 3), 0.5), torch.rand(5, 3, generator=g)])
+    points = points[torch.randperm(len(points), generator=g)].double().numpy()
+    index, distance = nearest_other(points)
+    for i in range(len(points)):
+        d = [math.dist(points[i], points[j]) if j != i else math.inf for j in range(len(points))]
+        assert distance[i] == pytest.approx(min(d), abs=1e-12)
+        assert index[i] != i and d[index[i]] == pytest.approx(min(d), abs=1e-12)
+        nearest = [j for j in range(len(points)) if d[j] == min(d)]
+        if len({tuple(points[j]) for j in nearest}) == 1:  # one nearest position: its first copy
+            assert index[i] == nearest[0]
+
+
 def test_cher_needs_a_large_enough_pool():
     buffer = make_buffer(CherSampler(pool_size=50), goal_transitions(100))
     with pytest.raises(ValueError, match="pool_size >= batch_size \\+ subset_size - 1 = 66"):
