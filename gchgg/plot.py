@@ -1,9 +1,11 @@
 """Curves and tables over seeds: median and interquartile range of a metric per group of runs.
 
     python -m gchgg.plot RUN_OR_SWEEP_OR_CSV... [--out FIG.png] [--table TABLE.md] [--y COLUMN...]
+    python -m gchgg.plot docs/results/push_new --compare gchgg ghgg
 
 Each argument is a run folder (``metrics.csv`` and the ``config.yaml`` the trainer saves), a folder
-holding such runs at any depth (a sweep), or a ``metrics.csv``-style file. Runs are grouped by task
+holding such runs at any depth (a sweep), a ``metrics.csv``-style file, or a folder of such files
+(its ``*.csv``, not its subfolders': ``docs/results/push_new``). Runs are grouped by task
 and by the settings that differ between them, read from their saved configs (seed, paths and
 logging aside); a CSV without a config beside it is grouped by its name without its ``-seed<N>``
 suffix and its task is its folder's name (``docs/results/push_new/gchgg-seed0.csv`` → task
@@ -21,12 +23,34 @@ that stop to the first success ≥ 0.9 (after the stop the curriculum samples pl
 variant trains the same way from there), the mean
 ``diversity_decided`` fraction while the curriculum was active (before that stop), and wall-clock
 hours.
+
+Two scores per run, summarised per group by their interquartile mean with a 95 % stratified-bootstrap
+interval (:mod:`gchgg.stats`, rliable's definitions), are in the table too:
+
+- **first ≥ 0.9**, censored: :func:`first_at` 0.9 if it is below the run's budget B. A run that did
+  not get there is *censored* at ``min(L, B)``, L its last iteration + 1 (the first iteration it did
+  not run; iterations count from 0): at B, the first iteration past its budget ("budget + 1" counted
+  from 1), if it ran its budget, and at its own length if it ended before (a pick_obstacle run
+  abandoned at 0.00 after 200 of 400 iterations is censored at 200, not counted as failing at 400).
+  A run that stopped early by ``train.stop_success`` had reached 0.9.
+- **AUC**: the mean evaluation success rate over iterations 0 … R − 1, R the largest budget of the
+  task's runs (the same range for every group of a task), each run held at its last value as the
+  curves hold it: a fraction in [0, 1].
+
+A run's budget B is ``--budget`` if given, else ``train.iterations`` of its saved config, else that
+of the task's Fig. 5 experiment (``conf/experiment/fig5_<task>.yaml``: reach 15, push_new 200,
+pick_no_obstacle 200, pick_obstacle 400), else the task's longest run's length.
+
+``--compare A B`` prints, per task holding both groups, the probability that a run of A beats a
+run of B on each score (fewer iterations to 0.9; a larger AUC), with its 95 % interval, instead of
+the table (``--table`` and ``--out`` still write theirs).
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import math
 import re
 from collections.abc import Iterable, Sequence
@@ -35,10 +59,16 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Run", "find_runs", "group_runs", "iqr", "plot", "table"]
+from gchgg import stats
+
+__all__ = ["Run", "Scores", "budget_of", "compare", "find_runs", "first_score", "group_runs", "iqr", "plot",
+           "scores", "table"]
 
 _IGNORED = ("seed", "resume", "threads", "matmul", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
 _SEED_SUFFIX = re.compile(r"-seed\d+$")
+_EXPERIMENTS = Path(__file__).resolve().parents[1] / "conf" / "experiment"  # fig5_<task>.yaml: the tasks' budgets
+THRESHOLD = 0.9
+"""The success rate whose first iteration is the scores' "first ≥ 0.9"."""
 
 
 @dataclass
@@ -114,7 +144,9 @@ def find_runs(paths: Iterable[str | Path]) -> list[Run]:
         if path.is_dir() and not (path / "metrics.csv").is_file():
             found = sorted(p.parent for p in path.rglob("metrics.csv"))
             if not found:
-                raise FileNotFoundError(f"no metrics.csv under {path}")
+                found = sorted(path.glob("*.csv"))  # a folder of metrics CSVs: docs/results/push_new
+            if not found:
+                raise FileNotFoundError(f"no metrics.csv under {path}, nor a CSV file in it")
             runs.extend(load_run(p) for p in found)
         else:
             runs.append(load_run(path))
@@ -191,13 +223,131 @@ def first_at(run: Run, threshold: float, column: str = "success_rate") -> float:
     return math.inf
 
 
-def _fmt(stats: tuple[float, float, float], digits: int | None = None) -> str:
+@functools.lru_cache(maxsize=None)
+def _fig5_budget(task: str) -> int | None:
+    """``train.iterations`` of ``conf/experiment/fig5_<task>.yaml`` (None if there is no such file)."""
+    path = _EXPERIMENTS / f"fig5_{task}.yaml"
+    if not path.is_file():
+        return None
+    import yaml
+
+    return int(((yaml.safe_load(path.read_text()) or {}).get("train") or {})["iterations"])
+
+
+def budget_of(run: Run, override: int | None = None) -> int | None:
+    """The iterations ``run`` was given: ``override`` if set, else its config's ``train.iterations``, else
+    the task's Fig. 5 budget (``conf/experiment/fig5_<task>.yaml``), else None (not known)."""
+    if override is not None:
+        if override < 1:
+            raise ValueError(f"--budget {override}: a budget is a number of iterations, allowed: 1 or more")
+        return int(override)
+    if "train.iterations" in run.settings:
+        return int(run.settings["train.iterations"])
+    return _fig5_budget(run.task)
+
+
+def first_score(run: Run, budget: int, threshold: float = THRESHOLD) -> tuple[int, bool]:
+    """``(iteration, censored)``: the first iteration at ``success_rate`` ≥ ``threshold`` if below ``budget``
+    (:func:`first_at`), else ``min(last iteration + 1, budget)`` marked censored (see the module's docstring).
+
+    >>> run = Run(Path("r.csv"), "t", rows=[{"iteration": i, "success_rate": s} for i, s in enumerate([0, 0.5, 0.9])])
+    >>> first_score(run, 200), first_score(run, 2), first_score(run, 200, threshold=0.95)
+    ((2, False), (2, True), (3, True))
+    """
+    first = first_at(run, threshold)
+    if first < budget:
+        return int(first), False
+    return min(int(run.rows[-1]["iteration"]) + 1, budget), True
+
+
+def auc(run: Run, iterations: int, column: str = "success_rate") -> float:
+    """The mean of ``column`` over iterations 0 … ``iterations`` − 1, the run held at its last value past its end."""
+    values = run.column(column)
+    held = np.concatenate([values, np.full(max(iterations - len(values), 0), values[-1])])[:iterations]
+    if np.isnan(held).any():
+        raise ValueError(f"{run.path}: {column} is missing at an iteration below {iterations}; the AUC needs every one")
+    return float(held.mean())
+
+
+@dataclass
+class Scores:
+    """One group's per-run scores: first ≥ 0.9 (censored or not) under each run's budget, and the AUC
+    over the task's common range ``auc_range``."""
+
+    first: np.ndarray
+    censored: np.ndarray
+    auc: np.ndarray
+    budgets: list[int]
+    auc_range: int
+
+    @property
+    def runs(self) -> int:
+        return len(self.first)
+
+    def first_interval(self, rng: np.random.Generator | None = None) -> stats.Estimate:
+        """IQM [95 % CI] of first ≥ 0.9 (censored runs at their censoring iteration)."""
+        return stats.iqm_interval(self.first, rng=rng)
+
+    def auc_interval(self, rng: np.random.Generator | None = None) -> stats.Estimate:
+        """IQM [95 % CI] of the AUC."""
+        return stats.iqm_interval(self.auc, rng=rng)
+
+
+def scores(groups: dict[tuple[str, str], list[Run]], budget: int | None = None) -> dict[tuple[str, str], Scores]:
+    """Each group's :class:`Scores`; ``budget`` overrides every run's (see :func:`budget_of`). A run whose
+    budget is not known gets its task's longest run's length."""
+    longest: dict[str, int] = {}
+    for (task, _), runs in groups.items():
+        longest[task] = max([longest.get(task, 0), *(int(r.rows[-1]["iteration"]) + 1 for r in runs)])
+    budgets = {id(r): budget_of(r, budget) or longest[task] for (task, _), runs in groups.items() for r in runs}
+    ranges: dict[str, int] = {}
+    for (task, _), runs in groups.items():
+        ranges[task] = max([ranges.get(task, 0), *(budgets[id(r)] for r in runs)])
+    out = {}
+    for (task, label), runs in groups.items():
+        firsts = [first_score(r, budgets[id(r)]) for r in runs]
+        out[task, label] = Scores(
+            first=np.array([f for f, _ in firsts], dtype=float),
+            censored=np.array([c for _, c in firsts], dtype=bool),
+            auc=np.array([auc(r, ranges[task]) for r in runs]),
+            budgets=[budgets[id(r)] for r in runs],
+            auc_range=ranges[task],
+        )
+    return out
+
+
+def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, budget: int | None = None,
+            rng: np.random.Generator | None = None) -> list[str]:
+    """Per task holding both groups, one line: P(a run of ``first`` beats a run of ``second``) on first ≥ 0.9
+    (strictly fewer iterations; censored pairs as in :func:`gchgg.stats.probability_of_improvement`) and
+    on the AUC (larger), each with its 95 % interval and the runs it rests on."""
+    labels = {label for _, label in groups}
+    for name in (first, second):
+        if name not in labels:
+            raise ValueError(f"--compare {first} {second}: no group {name!r}; the groups are {', '.join(sorted(labels))}")
+    table_scores = scores(groups, budget)
+    lines = []
+    for task in sorted({task for task, _ in groups}):
+        if (task, first) not in groups or (task, second) not in groups:
+            missing = first if (task, first) not in groups else second
+            lines.append(f"{task}: no runs of {missing}")
+            continue
+        a, b = table_scores[task, first], table_scores[task, second]
+        poi_first = stats.poi_interval(a.first, b.first, lower_is_better=True, x_censored=a.censored,
+                                       y_censored=b.censored, rng=rng)
+        poi_auc = stats.poi_interval(a.auc, b.auc, rng=rng)
+        lines.append(f"{task}: P({first} beats {second}) first >= {THRESHOLD}: {poi_first.format()}"
+                     f" ({a.runs} vs {b.runs} runs); AUC over iterations 0-{a.auc_range - 1}: {poi_auc.format()}")
+    return lines
+
+
+def _fmt(quartiles: tuple[float, float, float], digits: int | None = None) -> str:
     def one(v: float) -> str:
         if v == math.inf:
             return "never"
         return "—" if math.isnan(v) else (f"{v:g}" if digits is None else f"{v:.{digits}f}")
 
-    median, low, high = stats
+    median, low, high = quartiles
     return "—" if math.isnan(median) else f"{one(median)} [{one(low)}, {one(high)}]"  # —: no run logged it
 
 
@@ -207,16 +357,20 @@ def _as_list(column: str | Sequence[str]) -> list[str]:
 
 
 def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150),
-          column: str | Sequence[str] = "success_rate") -> str:
+          column: str | Sequence[str] = "success_rate", budget: int | None = None) -> str:
     """A Markdown table per group: runs, iterations to success ≥ 0.5 / ≥ 0.9, each of ``column`` at ``at``
-    and at the end, ... (the thresholds are on ``success_rate`` whatever ``column`` is).
+    and at the end, the IQM [95 % CI] of first ≥ 0.9 (censored runs counted at their censoring
+    iteration, and how many were), the IQM [95 % CI] of the AUC, ... (the thresholds and scores are on
+    ``success_rate`` whatever ``column`` is; ``budget`` overrides the runs' budgets, :func:`budget_of`).
 
     A run shorter than an ``at`` iteration (one stopped early, or ``at 300`` for a run of iterations
     0–299) counts with its last value, as the curves hold it."""
     columns = _as_list(column)
+    group_scores = scores(groups, budget)
     head = ["task", "group", "runs", "first ≥ 0.5", "first ≥ 0.9"]
     for name in columns:
         head += [*(f"{name} at {i}" for i in at), f"final {name}"]
+    head += [f"first ≥ {THRESHOLD} IQM [95 % CI]", "censored", "AUC IQM [95 % CI]"]
     head += ["last iteration", "HGG stop", "first ≥ 0.9 − HGG stop", "diversity decided (before the stop)", "hours"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for (task, label), runs in sorted(groups.items()):
@@ -230,6 +384,8 @@ def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100
             for i in at:  # past the longest run's end: every run's last value, as the curves hold it
                 cells.append(_fmt(iqr(values[:, min(i, values.shape[1] - 1)]), 2))
             cells.append(_fmt(iqr([r.column(name)[-1] for r in runs]), 2))
+        score = group_scores[task, label]
+        cells += [score.first_interval().format(1), str(int(score.censored.sum())), score.auc_interval().format(3)]
         cells.append(_fmt(iqr([r.rows[-1]["iteration"] for r in runs])))
         generated = [r for r in runs if "d_g" in r.rows[-1]]  # runs with a goal generator
         stops = [first_at(r, 1.0, "stopped") for r in generated]
@@ -291,7 +447,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--y", nargs="+", default=["success_rate"], metavar="COLUMN",
                         help="metrics columns to plot (one row of panels each) and tabulate; default: success_rate")
     parser.add_argument("--at", type=int, nargs="*", default=[70, 100, 150], help="iterations the table reports")
+    parser.add_argument("--budget", type=int, metavar="N",
+                        help="every run's budget in iterations (censoring of first >= 0.9, the AUC's range); "
+                             "default: its config's train.iterations, else conf/experiment/fig5_<task>.yaml's")
+    parser.add_argument("--compare", nargs=2, metavar=("A", "B"),
+                        help="print P(a run of group A beats one of group B) per task, on both scores, instead of the table")
     args = parser.parse_args(argv)
+    if args.budget is not None and args.budget < 1:
+        parser.error(f"--budget {args.budget}: a budget is a number of iterations, allowed: 1 or more")
     runs = find_runs(args.paths)
     logged = {key for run in runs for row in run.rows for key in row}
     unknown = [name for name in args.y if name not in logged]
@@ -299,8 +462,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         parser.error(f"--y {' '.join(unknown)}: no run logged {'these columns' if len(unknown) > 1 else 'this column'};"
                      f" the runs' columns are {', '.join(sorted(logged))}")
     groups = group_runs(runs)
-    text = table(groups, args.at, args.y)
-    print(text, end="")
+    if args.compare:
+        try:
+            print("\n".join(compare(groups, *args.compare, budget=args.budget)))
+        except ValueError as error:
+            parser.error(str(error))
+    text = table(groups, args.at, args.y, args.budget) if args.table or not args.compare else ""
+    if not args.compare:
+        print(text, end="")
     if args.table:
         Path(args.table).write_text(text)
     if args.out:

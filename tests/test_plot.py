@@ -113,3 +113,114 @@ def test_runs_without_a_column_are_left_out_of_its_statistics_and_an_unknown_col
     with pytest.raises(SystemExit):
         plot.main([str(sweep), "--y", "d_gg"])
     assert "--y d_gg: no run logged this column; the runs' columns are d_g, diversity_decided" in capsys.readouterr().err
+
+
+def write_csv(path, success):
+    """A bare metrics CSV (no config beside it): iterations 0, 1, ... with these success rates."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("iteration,success_rate\n" + "".join(f"{i},{s}\n" for i, s in enumerate(success)))
+
+
+def test_a_folder_of_csvs_is_its_runs_without_its_subfolders(tmp_path):
+    write_csv(tmp_path / "push_new" / "gchgg-seed0.csv", [0.0, 1.0])
+    write_csv(tmp_path / "push_new" / "gchgg-seed1.csv", [0.0, 0.5])
+    write_csv(tmp_path / "push_new" / "unfinished" / "gchgg-seed2.csv", [0.0])  # not one of the folder's runs
+    runs = plot.find_runs([tmp_path / "push_new"])
+    assert [r.path.name for r in runs] == ["gchgg-seed0.csv", "gchgg-seed1.csv"]
+    assert list(plot.group_runs(runs)) == [("push_new", "gchgg")]
+
+
+def test_budgets_come_from_the_config_else_the_tasks_fig5_experiment_else_the_override(sweep, tmp_path):
+    write_csv(tmp_path / "push_new" / "her-seed0.csv", [0.0])
+    write_csv(tmp_path / "pick_obstacle" / "her-seed0.csv", [0.0])
+    write_csv(tmp_path / "reach" / "her-seed0.csv", [0.0])
+    write_csv(tmp_path / "elsewhere" / "her-seed0.csv", [0.0])
+    push, pick, reach, other = (plot.load_run(tmp_path / t / "her-seed0.csv")
+                                for t in ("push_new", "pick_obstacle", "reach", "elsewhere"))
+    assert [plot.budget_of(r) for r in (push, pick, reach, other)] == [200, 400, 15, None]  # conf/experiment/fig5_*.yaml
+    assert plot.budget_of(pick, override=250) == 250
+    configured = plot.load_run(sweep / "a0")
+    configured.settings["train.iterations"] = "150"
+    assert plot.budget_of(configured) == 150
+    with pytest.raises(ValueError, match="--budget 0: .* allowed: 1 or more"):
+        plot.budget_of(push, override=0)
+
+
+def test_first_at_0_9_is_censored_at_the_budget_or_at_the_runs_own_end(tmp_path):
+    def run(success):
+        write_csv(tmp_path / "r.csv", success)
+        return plot.load_run(tmp_path / "r.csv")
+
+    # reached at iteration 2 (0-based, as plot.first_at counts): observed
+    assert plot.first_score(run([0.0, 0.5, 0.9, 1.0]), budget=10) == (2, False)
+    # ran its whole budget of 4 iterations (0-3) without 0.9: censored at 4, the first iteration past the budget
+    assert plot.first_score(run([0.0, 0.5, 0.8, 0.8]), budget=4) == (4, True)
+    # stayed at 0.00 and ended after 3 of its 10 iterations: censored at its own end, 3, not at 10
+    assert plot.first_score(run([0.0, 0.0, 0.0]), budget=10) == (3, True)
+    # reached 0.9 only at its budget's end or after it: censored at the budget
+    assert plot.first_score(run([0.0, 0.0, 0.9]), budget=2) == (2, True)
+
+
+def test_auc_is_the_mean_success_over_the_common_range_each_run_held_at_its_last_value(tmp_path):
+    write_csv(tmp_path / "r.csv", [0.0, 0.5, 1.0])
+    run = plot.load_run(tmp_path / "r.csv")
+    assert plot.auc(run, 3) == pytest.approx(0.5)
+    assert plot.auc(run, 5) == pytest.approx((0 + 0.5 + 1 + 1 + 1) / 5)  # held at 1.0 to iteration 4
+    assert plot.auc(run, 2) == pytest.approx(0.25)  # only iterations 0 and 1
+
+
+def test_the_table_gives_iqm_intervals_of_both_scores_and_the_censored_count(tmp_path, capsys):
+    for seed, rates in enumerate([[0.0, 0.9, 1.0, 1.0], [0.0, 0.0, 0.9, 1.0], [0.0, 0.0, 0.0, 0.5]]):
+        write_csv(tmp_path / "toy" / f"a-seed{seed}.csv", rates)
+    plot.main([str(tmp_path / "toy"), "--at", "1"])
+    head, _, row = capsys.readouterr().out.splitlines()[:3]
+    cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|"))))
+    # task toy has no Fig. 5 experiment: the budget is its longest run, 4 iterations; the third run is censored at 4
+    first = (1 + 2 + 4) / 3  # 3 runs: the IQM is their mean
+    assert cells["first ≥ 0.9 IQM [95 % CI]"].startswith(f"{first:.1f} [")
+    assert cells["censored"] == "1"
+    auc = ((0 + 0.9 + 1 + 1) + (0 + 0 + 0.9 + 1) + (0 + 0 + 0 + 0.5)) / 12
+    assert cells["AUC IQM [95 % CI]"].startswith(f"{auc:.3f} [")
+    plot.main([str(tmp_path / "toy"), "--at", "1", "--budget", "2"])  # first >= 0.9 must come before iteration 2
+    head, _, row = capsys.readouterr().out.splitlines()[:3]
+    cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|"))))
+    assert cells["first ≥ 0.9 IQM [95 % CI]"] == f"{(1 + 2 + 2) / 3:.1f} [1.0, 2.0]" and cells["censored"] == "2"
+
+
+def test_compare_prints_the_probability_that_a_run_of_one_group_beats_one_of_the_other(tmp_path, capsys):
+    for seed, (fast, slow) in enumerate([(1, 3), (2, 3), (1, None)]):
+        write_csv(tmp_path / "toy" / f"fast-seed{seed}.csv", [0.0] * fast + [0.9] * (5 - fast))
+        write_csv(tmp_path / "toy" / f"slow-seed{seed}.csv", [0.0] * 5 if slow is None else [0.0] * slow + [0.95] * (5 - slow))
+    write_csv(tmp_path / "other" / "fast-seed0.csv", [0.0, 1.0])
+    plot.main([str(tmp_path / "toy"), str(tmp_path / "other"), "--compare", "fast", "slow"])
+    out = capsys.readouterr().out.splitlines()
+    # fast: 1, 2, 1 against slow: 3, 3, 5: every pair won; the AUCs: fast's are all larger
+    assert out == ["other: no runs of slow",
+                   "toy: P(fast beats slow) first >= 0.9: 1.00 [1.00, 1.00] (3 vs 3 runs); "
+                   "AUC over iterations 0-4: 1.00 [1.00, 1.00]"]
+    plot.main([str(tmp_path / "toy"), "--compare", "slow", "fast"])
+    assert capsys.readouterr().out.startswith("toy: P(slow beats fast) first >= 0.9: 0.00 [0.00, 0.00] (3 vs 3 runs)")
+    with pytest.raises(SystemExit):
+        plot.main([str(tmp_path / "toy"), "--compare", "fast", "her"])
+    assert "--compare fast her: no group 'her'; the groups are fast, slow" in capsys.readouterr().err
+
+
+def test_compare_counts_ties_half_and_leaves_the_order_of_censored_runs_open(tmp_path, capsys):
+    # a: 0.9 at 1, and one run never (censored at 4); b: 0.9 at 1, and at 2
+    for name, rates in {"a-seed0": [0, 1, 1, 1], "a-seed1": [0, 0, 0, 0], "b-seed0": [0, 1, 1, 1], "b-seed1": [0, 0, 1, 1]}.items():
+        write_csv(tmp_path / "toy" / f"{name}.csv", rates)
+    plot.main([str(tmp_path / "toy"), "--compare", "a", "b"])
+    line = capsys.readouterr().out.strip()
+    # pairs (1, 1) tie, (1, 2) won, (4 censored, 1) lost, (4 censored, 2) lost: (0.5 + 1) / 4
+    assert line.startswith("toy: P(a beats b) first >= 0.9: 0.38 [")
+    # AUCs over 0-3: a 0.75, 0.00; b 0.75, 0.50: (0.75, 0.75) tie, (0.75, 0.5) won, 0.00 lost twice: 1.5 / 4
+    assert "; AUC over iterations 0-3: 0.38 [" in line
+
+
+def test_the_readme_quotes_what_compare_prints_on_the_committed_push_new_runs(capsys):
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    plot.main([str(repo / "docs/results/push_new"), "--compare", "gchgg", "ghgg"])
+    (line,) = capsys.readouterr().out.splitlines()
+    assert f"    {line}\n" in (repo / "README.md").read_text()

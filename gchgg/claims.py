@@ -1,0 +1,294 @@
+"""The claims table: each of the paper's claims (a hand-written YAML list) against the committed runs, with a verdict.
+
+    python -m gchgg.claims docs/results --out docs/results/claims.md [--claims docs/results/claims.yaml]
+
+Reads the runs of each claim's task from ``<results>/<task>/`` (its ``*.csv``, or run folders under it,
+as :func:`gchgg.plot.find_runs` does), scores them as :mod:`gchgg.plot` does (first ≥ 0.9 censored at
+the run's budget or end; the success rate held past a run's end) and writes a Markdown table: per
+claim the claim, the paper's figure, the measured one (IQM [95 % CI] or a probability of improvement
+[95 % CI], :mod:`gchgg.stats`; the runs it rests on) and a verdict, *holds*, *contradicted* or
+*undecided*, with its reason. Below the table, one line per verdict lists its claims: the lines the
+README quotes.
+
+A claim's ``kind`` sets what is measured and the verdict's rule (every kind: *undecided* while a
+group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without any yet):
+
+- ``reaches_by`` (``by`` N): first ≥ 0.9 of the group. Holds if the IQM's CI upper bound ≤ N · (1 +
+  ``slack``), contradicted if its lower bound is above that, else undecided.
+- ``fails`` (``within`` W): first ≥ 0.9. Holds if every run is censored (none reached 0.9),
+  contradicted if the IQM's CI upper bound < W, else undecided.
+- ``final`` (``level`` m, ``spread`` s): the success rate at the last iteration of the task's budget,
+  each run held at its last value past its end. Holds if the IQM's CI lies inside [m − s, m + s];
+  contradicted if it lies wholly above, or wholly below while no run stopped early by the stop rule
+  (a run that reached 0.9 and ended before its budget: the stop rule ended it soon after holding 0.9,
+  so its last value says nothing of a policy trained on to the budget); else undecided.
+- ``faster`` (``than`` B): P(a run of the group reaches 0.9 in fewer iterations than a run of B).
+  Holds if its CI lies above 0.5, contradicted if below 0.5, else undecided.
+
+An entry with a list of ``groups`` (or of ``than``) is one claim per member; ``{name}`` and
+``{than}`` in its ``claim`` are replaced by the display names of ``names``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gchgg import plot, stats
+
+__all__ = ["Claim", "Row", "judge", "load_claims", "main", "measure", "render", "summary", "verdicts"]
+
+KINDS = {"reaches_by": ("by",), "fails": ("within",), "final": ("level", "spread"), "faster": ("than",)}
+"""Each kind of claim and the fields it needs besides id, task, groups, claim and paper."""
+
+VERDICTS = ("holds", "contradicted", "undecided")
+
+
+@dataclass
+class Claim:
+    """One claim about one group (and, for ``faster``, the group it is compared with) on one task."""
+
+    id: str
+    task: str
+    kind: str
+    group: str
+    claim: str
+    paper: str
+    by: float = math.nan
+    within: float = math.nan
+    level: float = math.nan
+    spread: float = math.nan
+    than: str = ""
+
+
+@dataclass
+class Row:
+    """A claim's line of the table: what was measured, the verdict and its reason."""
+
+    claim: Claim
+    measured: str
+    verdict: str
+    reason: str
+    short_of_runs: bool = False
+
+
+def _as_list(value) -> list:
+    return list(value) if isinstance(value, (list, tuple)) else [value]
+
+
+def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
+    """The claims of a YAML file (one per group of each entry) and its settings (``min_runs``, ``slack``)."""
+    import yaml
+
+    data = yaml.safe_load(Path(path).read_text()) or {}
+    names = data.get("names") or {}
+    settings = {"min_runs": int(data.get("min_runs", 3)), "slack": float(data.get("slack", 0.1))}
+    if settings["min_runs"] < 1 or settings["slack"] < 0:
+        raise ValueError(f"{path}: min_runs {settings['min_runs']}, slack {settings['slack']}; allowed: "
+                         "min_runs 1 or more, slack 0 or more")
+    claims = []
+    for number, entry in enumerate(data.get("claims") or []):
+        if not isinstance(entry, dict):
+            raise ValueError(f"{path}: claim #{number + 1} is {entry!r}; allowed: a mapping (id, task, kind, ...)")
+        where = f"{path}: claim {entry.get('id', f'#{number + 1}')}"
+        missing = [k for k in ("id", "task", "kind", "groups", "claim", "paper") if k not in entry]
+        if missing:
+            raise ValueError(f"{where}: no {', '.join(missing)}; every claim needs id, task, kind, groups, claim, paper")
+        kind = entry["kind"]
+        if kind not in KINDS:
+            raise ValueError(f"{where}: kind {kind!r}; allowed: {', '.join(KINDS)}")
+        missing = [k for k in KINDS[kind] if k not in entry]
+        if missing:
+            raise ValueError(f"{where}: kind {kind} needs {', '.join(KINDS[kind])}; {', '.join(missing)} missing")
+        groups, others = _as_list(entry["groups"]), _as_list(entry.get("than", ""))
+        for group in groups:
+            for than in others:
+                suffix = (f"-{group}" if len(groups) > 1 else "") + (f"-{than}" if len(others) > 1 else "")
+                fields = {k: float(entry[k]) for k in ("by", "within", "level", "spread") if k in entry}
+                claims.append(Claim(
+                    id=f"{entry['id']}{suffix}", task=entry["task"], kind=kind, group=group, than=than,
+                    claim=entry["claim"].format(name=names.get(group, group), than=names.get(than, than)),
+                    paper=entry["paper"], **fields))
+    if not claims:
+        raise ValueError(f"{path}: no claims (a YAML mapping with a `claims` list)")
+    return claims, settings
+
+
+def measure(results: str | Path, task: str) -> tuple[dict[str, plot.Scores], dict[str, tuple[np.ndarray, int]]]:
+    """The runs of ``<results>/<task>`` by group label: their :class:`gchgg.plot.Scores`, and each run's
+    success rate at the task's last budget iteration (held past its end) with how many runs stopped
+    early by the stop rule (reached 0.9 and ended before their budget). Empty if the folder is absent."""
+    folder = Path(results) / task
+    if not folder.is_dir():
+        return {}, {}
+    groups = plot.group_runs(plot.find_runs([folder]))
+    group_scores = plot.scores(groups)
+    scores, finals = {}, {}
+    for (_, label), runs in groups.items():
+        s = scores[label] = group_scores[task, label]
+        at_end = np.array([r.column("success_rate")[: s.auc_range][-1] for r in runs])
+        stopped = sum(not c and int(r.rows[-1]["iteration"]) + 1 < b for r, c, b in zip(runs, s.censored, s.budgets))
+        finals[label] = (at_end, stopped)
+    return scores, finals
+
+
+def _few(claim: Claim, runs: dict[str, int], min_runs: int) -> str:
+    """The reason a claim is undecided for want of runs ("" if every group it reads has enough)."""
+    short = [g for g in (claim.group, claim.than) if g and runs.get(g, 0) < min_runs]
+    if not short:
+        return ""
+    parts = [f"{g}: {runs.get(g, 0)} run{'s' * (runs.get(g, 0) != 1)}" for g in short]
+    return "; ".join(parts) + (f" ({min_runs} needed)" if any(runs.get(g, 0) for g in short) else "")
+
+
+def _number(value: float) -> str:
+    return f"{value:g}"
+
+
+def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[np.ndarray, int]],
+          min_runs: int = 3, slack: float = 0.1) -> Row:
+    """The claim's row: its measured figure and its verdict by the rule of its kind (module docstring)."""
+    runs = {label: s.runs for label, s in scores.items()}
+    few = _few(claim, runs, min_runs)
+    mine = scores.get(claim.group)
+    if mine is None:
+        return Row(claim, "—; 0 runs", "undecided", few, True)
+    first = mine.first_interval()
+    first_text = (f"first ≥ {plot.THRESHOLD} IQM {first.format(1)}; {mine.runs} run{'s' * (mine.runs != 1)}, "
+                  f"{int(mine.censored.sum())} censored")
+    if claim.kind == "reaches_by":
+        bound = claim.by * (1 + slack)
+        target = f"{_number(bound)} ({_number(claim.by)} + {_number(100 * slack)} %)"
+        if few:
+            return Row(claim, first_text, "undecided", few, True)
+        if first.high <= bound:
+            return Row(claim, first_text, "holds", f"CI ≤ {target}")
+        if first.low > bound:
+            return Row(claim, first_text, "contradicted", f"CI > {target}")
+        return Row(claim, first_text, "undecided", f"CI straddles {target}")
+    if claim.kind == "fails":
+        if few:
+            return Row(claim, first_text, "undecided", few, True)
+        censored = int(mine.censored.sum())
+        if censored == mine.runs:
+            at = sorted({int(v) for v in mine.first})
+            where = f"{at[0]}" if len(at) == 1 else f"{at[0]}–{at[-1]}"
+            return Row(claim, first_text, "holds", f"no run reached 0.9 (censored at {where})")
+        if first.high < claim.within:
+            return Row(claim, first_text, "contradicted", f"CI < {_number(claim.within)}")
+        return Row(claim, first_text, "undecided", f"{mine.runs - censored} of {mine.runs} runs reached 0.9; "
+                                                   f"CI reaches {_number(claim.within)}")
+    if claim.kind == "final":
+        values, stopped = finals[claim.group]
+        end = stats.iqm_interval(values)
+        text = (f"success at {mine.auc_range - 1} IQM {end.format(2)}; {mine.runs} run{'s' * (mine.runs != 1)}, "
+                f"{stopped} stopped early")
+        low, high = claim.level - claim.spread, claim.level + claim.spread
+        band = f"[{low:.2f}, {high:.2f}]"
+        eps = 1e-9  # 0.99 + 0.01 is 1.0 up to float rounding
+        if few:
+            return Row(claim, text, "undecided", few, True)
+        if end.low >= low - eps and end.high <= high + eps:
+            return Row(claim, text, "holds", f"CI inside {band}")
+        if end.low > high + eps:
+            return Row(claim, text, "contradicted", f"CI above {band}")
+        if end.high < low - eps:
+            if stopped:
+                return Row(claim, text, "undecided", f"CI below {band}, but {stopped} of {mine.runs} runs were "
+                                                     "stopped by the stop rule before the budget")
+            return Row(claim, text, "contradicted", f"CI below {band}")
+        return Row(claim, text, "undecided", f"CI overlaps {band}")
+    # faster
+    other = scores.get(claim.than)
+    if other is None:
+        return Row(claim, f"{first_text}; {claim.than}: 0 runs", "undecided", few, True)
+    poi = stats.poi_interval(mine.first, other.first, lower_is_better=True, x_censored=mine.censored,
+                             y_censored=other.censored)
+    text = f"P({claim.group} beats {claim.than}) on first ≥ {plot.THRESHOLD}: {poi.format(2)}; {mine.runs} vs {other.runs} runs"
+    if few:
+        return Row(claim, text, "undecided", few, True)
+    if poi.low > 0.5:
+        return Row(claim, text, "holds", "CI above 0.5")
+    if poi.high < 0.5:
+        return Row(claim, text, "contradicted", "CI below 0.5")
+    return Row(claim, text, "undecided", "CI contains 0.5")
+
+
+def verdicts(results: str | Path, claims: Sequence[Claim], min_runs: int = 3, slack: float = 0.1) -> list[Row]:
+    """Every claim judged on the runs under ``results`` (``<results>/<task>/``)."""
+    measured = {task: measure(results, task) for task in sorted({c.task for c in claims})}
+    return [judge(c, *measured[c.task], min_runs, slack) for c in claims]
+
+
+def summary(rows: Sequence[Row]) -> list[str]:
+    """One line per verdict: how many claims got it (for undecided: how many for want of runs) and
+    which, by task (``task: claim; claim — task: claim``)."""
+    lines = []
+    for verdict in VERDICTS:
+        chosen = [r for r in rows if r.verdict == verdict]
+        by_task: dict[str, list[str]] = {}
+        for r in chosen:
+            by_task.setdefault(r.claim.task, []).append(r.claim.claim)
+        listed = " — ".join(f"{task}: {'; '.join(texts)}" for task, texts in by_task.items()) or "none"
+        few = sum(r.short_of_runs for r in chosen)
+        count = f"{len(chosen)} of {len(rows)}" + (f", {few} for want of runs" if few else "")
+        lines.append(f"- **{verdict}** ({count}): {listed}")
+    return lines
+
+
+def render(rows: Sequence[Row], command: str, min_runs: int = 3, slack: float = 0.1) -> str:
+    """The Markdown page: how it was made, the table, and the verdict lines."""
+    def cell(text: str) -> str:
+        return text.replace("|", "\\|")
+
+    lines = [
+        "# The paper's claims against the committed runs",
+        "",
+        f"Generated by `{command}` from the runs in each task's folder (its CSVs) and the claims in",
+        "[claims.yaml](claims.yaml) (what each claim measures, and the verdict rules); do not edit by hand.",
+        "first ≥ 0.9: a run's first iteration at an evaluation success rate ≥ 0.9; a run that never got there",
+        "is censored at its last iteration + 1 or its budget, whichever is smaller (the Fig. 5 budgets:",
+        "`conf/experiment/fig5_<task>.yaml`). IQM [95 % CI]: interquartile mean over runs with a",
+        "stratified-bootstrap interval; P(A beats B): probability of improvement, ties counted half",
+        f"(`gchgg/stats.py`, rliable's definitions). Undecided below {min_runs} runs per group; \"by N\" claims hold",
+        f"up to N + {100 * slack:g} %.",
+        "",
+        "| id | claim | paper | measured | verdict |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        verdict = f"**{r.verdict}**" + (f": {r.reason}" if r.reason else "")
+        lines.append(f"| {r.claim.id} | {cell(r.claim.claim)} | {cell(r.claim.paper)} | {cell(r.measured)} | {cell(verdict)} |")
+    lines += ["", "Verdicts:", "", *summary(rows), ""]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("results", help="the folder holding a folder of runs per task (docs/results)")
+    parser.add_argument("--claims", help="the claims' YAML file; default: <results>/claims.yaml")
+    parser.add_argument("--out", help="the Markdown file to write (printed either way)")
+    args = parser.parse_args(argv)
+    results = Path(args.results)
+    if not results.is_dir():
+        parser.error(f"results {args.results}: not a folder; pass the folder holding <task>/ folders of runs")
+    claims_path = Path(args.claims) if args.claims else results / "claims.yaml"
+    if not claims_path.is_file():
+        parser.error(f"--claims {claims_path}: no such file; pass the claims' YAML file")
+    claims, settings = load_claims(claims_path)
+    rows = verdicts(results, claims, **settings)
+    command = f"python -m gchgg.claims {args.results}" + (f" --claims {args.claims}" if args.claims else "") + (
+        f" --out {args.out}" if args.out else "")
+    text = render(rows, command, **settings)
+    print(text, end="")
+    if args.out:
+        Path(args.out).write_text(text)
+
+
+if __name__ == "__main__":
+    main()

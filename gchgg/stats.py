@@ -1,0 +1,194 @@
+"""Interval estimates over training runs: interquartile mean, stratified-bootstrap CIs, probability of improvement.
+
+The definitions are those of rliable (Agarwal et al., 2021, "Deep Reinforcement Learning at the Edge
+of the Statistical Precipice"), written out here with numpy alone: rliable itself pulls in arch,
+seaborn and pandas for what is a few lines of array code, so it is not a dependency.
+
+- **IQM**, the interquartile mean: the mean of the middle 50 % of the scores, ``int(0.25 · N)``
+  scores cut from each end of the N sorted scores (all runs of all tasks pooled), as
+  ``scipy.stats.trim_mean(scores, 0.25, axis=None)``, which rliable's ``aggregate_iqm`` calls. With
+  3 runs nothing is cut (the IQM is the mean); with 4 it is the mean of the middle two.
+- **95 % CI**: the percentile interval of the statistic over 2,000 stratified-bootstrap resamples:
+  each resample draws, within each task, as many runs as it has, with replacement (for one task: a
+  plain bootstrap of the runs). The draws come from a ``numpy.random.Generator``; by default a fresh
+  one seeded 0, so that a table regenerates to the same digits.
+- **Probability of improvement** P(X beats Y): over all pairs of a run of X and a run of Y (of the
+  same task), the fraction where X's run is better plus half the fraction of ties (the Mann-Whitney
+  U statistic over n · m), averaged over tasks. Its CI bootstraps the runs of X and of Y
+  independently (rliable's ``StratifiedIndependentBootstrap``).
+
+One addition for right-censored scores (a run that never reached a threshold, counted at the
+iteration where it was last seen): a pair's order counts only where the data show it. X's run beats
+Y's if X's is observed (not censored) and strictly better than Y's recorded value (Y's true value
+is at least as bad as recorded); a pair where neither is shown better (two censored runs, or an
+observed run no better than a censored one's recorded value) counts as a tie. Without censored
+scores this is exactly the Mann-Whitney fraction above; with every censored run at the same budget
+too (they tie among themselves and lose to every observed run).
+
+>>> iqm([1.0, 2.0, 3.0, 4.0, 100.0, 5.0, 6.0, 7.0])  # 2 cut from each end of 8: mean of 3, 4, 5, 6
+4.5
+>>> probability_of_improvement([3, 1], [2, 2])  # 3 > 2 twice, 1 < 2 twice
+0.5
+>>> probability_of_improvement([70, 90], [80, 90], lower_is_better=True)  # 70 beats both; 90 ties 90
+0.625
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Estimate", "iqm", "iqm_interval", "poi_interval", "probability_of_improvement", "bootstrap_indices"]
+
+REPS = 2000
+"""Bootstrap resamples per interval (rliable's default)."""
+
+ALPHA = 0.05
+"""1 − the intervals' confidence level: 95 % intervals."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A point estimate, its percentile-bootstrap interval ``[low, high]``, and the runs it rests on
+    (``runs``: one group's runs; ``other_runs``: the second group's, for a probability of improvement)."""
+
+    point: float
+    low: float
+    high: float
+    runs: int
+    other_runs: int = 0
+
+    def format(self, digits: int = 2) -> str:
+        """``point [low, high]`` with ``digits`` decimals."""
+        return f"{self.point:.{digits}f} [{self.low:.{digits}f}, {self.high:.{digits}f}]"
+
+
+def _matrix(scores, name: str) -> np.ndarray:
+    """``scores`` as a float ``[runs, tasks]`` matrix (a 1-D sequence is one task); no NaN, at least one run."""
+    array = np.asarray(scores, dtype=float)
+    if array.ndim == 1:
+        array = array[:, None]
+    if array.ndim != 2:
+        raise ValueError(f"{name}: scores of shape {array.shape}; allowed: [runs] or [runs, tasks]")
+    if array.shape[0] == 0 or array.shape[1] == 0:
+        raise ValueError(f"{name}: no runs (scores of shape {array.shape}); an estimate needs at least one run")
+    if np.isnan(array).any():
+        raise ValueError(f"{name}: a score is NaN; every run needs a score (count a censored run at its last iteration)")
+    return array
+
+
+def _iqm_last_axis(values: np.ndarray) -> np.ndarray:
+    """The interquartile mean along the last axis (``int(0.25 · N)`` values cut from each end)."""
+    n = values.shape[-1]
+    cut = int(0.25 * n)
+    return np.sort(values, axis=-1)[..., cut : n - cut].mean(axis=-1)
+
+
+def iqm(scores) -> float:
+    """The interquartile mean of ``scores`` (``[runs]`` or ``[runs, tasks]``, pooled): the mean of the middle 50 %.
+
+    >>> iqm([5.0, 1.0, 3.0])  # 3 runs: nothing cut, the mean
+    3.0
+    """
+    return float(_iqm_last_axis(_matrix(scores, "iqm").ravel()))
+
+
+def bootstrap_indices(runs: int, tasks: int, reps: int, rng: np.random.Generator) -> np.ndarray:
+    """``[reps, runs, tasks]`` run indices: per resample and task, ``runs`` draws with replacement
+    from that task's runs (the stratified bootstrap)."""
+    return rng.integers(0, runs, size=(reps, runs, tasks))
+
+
+def _resample(matrix: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``matrix[idx[r, i, t], t]`` for every resample r, draw i and task t: ``[reps, runs, tasks]``."""
+    return np.take_along_axis(matrix[None], idx, axis=1)
+
+
+def _rng(rng: np.random.Generator | None) -> np.random.Generator:
+    return np.random.default_rng(0) if rng is None else rng
+
+
+def _percentiles(samples: np.ndarray, alpha: float) -> tuple[float, float]:
+    low, high = np.percentile(samples, [100 * alpha / 2, 100 * (1 - alpha / 2)])
+    return float(low), float(high)
+
+
+def _check(reps: int, alpha: float) -> None:
+    if reps < 1:
+        raise ValueError(f"reps={reps}: the bootstrap needs at least 1 resample (default {REPS})")
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha={alpha}: allowed 0 < alpha < 1 (0.05 for a 95 % interval)")
+
+
+def iqm_interval(scores, *, reps: int = REPS, alpha: float = ALPHA, rng: np.random.Generator | None = None) -> Estimate:
+    """The IQM of ``scores`` (``[runs]`` or ``[runs, tasks]``) and its stratified-bootstrap ``1 − alpha`` interval.
+
+    >>> iqm_interval([4.0, 4.0, 4.0]).format(1)
+    '4.0 [4.0, 4.0]'
+    """
+    _check(reps, alpha)
+    matrix = _matrix(scores, "iqm_interval")
+    runs, tasks = matrix.shape
+    samples = _resample(matrix, bootstrap_indices(runs, tasks, reps, _rng(rng)))
+    low, high = _percentiles(_iqm_last_axis(samples.reshape(reps, runs * tasks)), alpha)
+    return Estimate(iqm(matrix), low, high, runs)
+
+
+def _censored(mask, shape: tuple[int, int], name: str) -> np.ndarray:
+    if mask is None:
+        return np.zeros(shape, dtype=bool)
+    array = np.asarray(mask, dtype=bool)
+    array = array[:, None] if array.ndim == 1 else array
+    if array.shape != shape:
+        raise ValueError(f"{name}: a mask of shape {array.shape} for scores of shape {shape}; allowed: the scores' shape")
+    return array
+
+
+def _poi(x: np.ndarray, y: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
+    """P(X beats Y) for higher-is-better ``x [..., n, T]``, ``y [..., m, T]`` and their censored masks: ``[...]``."""
+    xs, ys = x[..., :, None, :], y[..., None, :, :]
+    better = (xs > ys) & ~cx[..., :, None, :]  # x observed and above y's value: y's true value is at most that
+    worse = (ys > xs) & ~cy[..., None, :, :]
+    per_task = (better + 0.5 * (~better & ~worse)).mean(axis=(-3, -2))
+    return per_task.mean(axis=-1)
+
+
+def _oriented(x, y, lower_is_better, x_censored, y_censored, name):
+    x, y = _matrix(x, f"{name} (first group)"), _matrix(y, f"{name} (second group)")
+    if x.shape[1] != y.shape[1]:
+        raise ValueError(f"{name}: {x.shape[1]} tasks in the first group, {y.shape[1]} in the second; allowed: the same tasks")
+    cx = _censored(x_censored, x.shape, f"{name} x_censored")
+    cy = _censored(y_censored, y.shape, f"{name} y_censored")
+    sign = -1.0 if lower_is_better else 1.0
+    return sign * x, sign * y, cx, cy
+
+
+def probability_of_improvement(x, y, *, lower_is_better: bool = False, x_censored=None, y_censored=None) -> float:
+    """P(a run of X beats a run of Y): better in a pair, ties counted half, averaged over tasks.
+
+    ``x`` and ``y`` are ``[runs]`` or ``[runs, tasks]`` scores (the runs may differ in number, the
+    tasks may not); ``lower_is_better`` for scores such as iterations to a threshold, where beating
+    means strictly fewer. ``x_censored`` / ``y_censored`` mark scores known only as a bound (see the
+    module's docstring): a pair's order counts only where the data show it, else it is a tie.
+
+    >>> probability_of_improvement([100, 50], [100, 100], lower_is_better=True, x_censored=[True, False],
+    ...                            y_censored=[True, True])  # 50 beats both; censored 100 ties both
+    0.75
+    """
+    x, y, cx, cy = _oriented(x, y, lower_is_better, x_censored, y_censored, "probability_of_improvement")
+    return float(_poi(x, y, cx, cy))
+
+
+def poi_interval(x, y, *, lower_is_better: bool = False, x_censored=None, y_censored=None, reps: int = REPS,
+                 alpha: float = ALPHA, rng: np.random.Generator | None = None) -> Estimate:
+    """:func:`probability_of_improvement` and its ``1 − alpha`` interval, the runs of X and of Y
+    resampled independently (within each task)."""
+    _check(reps, alpha)
+    x, y, cx, cy = _oriented(x, y, lower_is_better, x_censored, y_censored, "poi_interval")
+    rng = _rng(rng)
+    ix = bootstrap_indices(x.shape[0], x.shape[1], reps, rng)
+    iy = bootstrap_indices(y.shape[0], y.shape[1], reps, rng)
+    samples = _poi(_resample(x, ix), _resample(y, iy), _resample(cx, ix), _resample(cy, iy))
+    low, high = _percentiles(samples, alpha)
+    return Estimate(float(_poi(x, y, cx, cy)), low, high, x.shape[0], y.shape[0])

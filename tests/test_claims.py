@@ -1,0 +1,116 @@
+"""The claims table (gchgg.claims): each verdict rule on synthetic runs, and the committed table up to date."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from gchgg import claims
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def write_csv(path, success):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("iteration,success_rate\n" + "".join(f"{i},{s}\n" for i, s in enumerate(success)))
+
+
+def reaching(at, length=20, level=1.0):
+    """Success 0 before iteration ``at``, ``level`` from it on."""
+    return [0.0] * at + [level] * (length - at)
+
+
+CLAIMS = """
+min_runs: 3
+slack: 0.1
+names: {fast: Fast, slow: Slow}
+claims:
+  - {id: by-fast, task: toy, kind: reaches_by, groups: [fast], by: 5, claim: "{name} by 5", paper: "5"}
+  - {id: by-slow, task: toy, kind: reaches_by, groups: [slow], by: 5, claim: "{name} by 5", paper: "5"}
+  - {id: by-mixed, task: toy, kind: reaches_by, groups: [mixed], by: 10, claim: "{name} by 10", paper: "10"}
+  - {id: fails, task: toy, kind: fails, groups: [never, fast, few, absent], within: 20, claim: "{name} fails", paper: "-"}
+  - {id: faster, task: toy, kind: faster, groups: [fast], than: [slow, fast], claim: "{name} beats {than}", paper: "x"}
+  - {id: slower, task: toy, kind: faster, groups: [slow], than: fast, claim: "{name} beats {than}", paper: "x"}
+  - {id: final-fast, task: toy, kind: final, groups: [fast], level: 1.0, spread: 0.0, claim: "1.0", paper: "1.0"}
+  - {id: final-low, task: toy, kind: final, groups: [fast], level: 0.5, spread: 0.1, claim: "0.5", paper: "0.5"}
+  - {id: final-never, task: toy, kind: final, groups: [never], level: 0.9, spread: 0.05, claim: "0.9", paper: "0.9"}
+  - {id: final-stopped, task: toy, kind: final, groups: [stopped], level: 0.99, spread: 0.01, claim: "0.99", paper: "0.99"}
+  - {id: elsewhere, task: missing_task, kind: fails, groups: [fast], within: 20, claim: "-", paper: "-"}
+"""
+
+
+@pytest.fixture
+def results(tmp_path):
+    toy = tmp_path / "toy"  # no Fig. 5 experiment: the budget is the longest run, 20 iterations
+    for seed, at in enumerate([3, 4, 5]):
+        write_csv(toy / f"fast-seed{seed}.csv", reaching(at))
+    for seed, at in enumerate([15, 16, 17]):
+        write_csv(toy / f"slow-seed{seed}.csv", reaching(at))
+    for seed, at in enumerate([3, 10, 17]):
+        write_csv(toy / f"mixed-seed{seed}.csv", reaching(at))
+    for seed in range(3):
+        write_csv(toy / f"never-seed{seed}.csv", [0.0] * (20 - 5 * seed))  # censored at 20, 15, 10
+        write_csv(toy / f"stopped-seed{seed}.csv", reaching(2, length=8, level=0.9))  # the stop rule ended it at 8
+    write_csv(toy / "few-seed0.csv", [0.0] * 20)
+    (tmp_path / "claims.yaml").write_text(CLAIMS)
+    return tmp_path
+
+
+def test_each_rule_gives_its_verdict(results):
+    loaded, settings = claims.load_claims(results / "claims.yaml")
+    rows = {r.claim.id: r for r in claims.verdicts(results, loaded, **settings)}
+    verdicts = {key: (r.verdict, r.reason) for key, r in rows.items()}
+    assert verdicts["by-fast"] == ("holds", "CI ≤ 5.5 (5 + 10 %)")  # IQM of 3, 4, 5 and its CI within [3, 5]
+    assert verdicts["by-slow"] == ("contradicted", "CI > 5.5 (5 + 10 %)")
+    assert verdicts["by-mixed"] == ("undecided", "CI straddles 11 (10 + 10 %)")
+    assert verdicts["fails-never"] == ("holds", "no run reached 0.9 (censored at 10–20)")
+    assert verdicts["fails-fast"] == ("contradicted", "CI < 20")
+    assert verdicts["fails-few"] == ("undecided", "few: 1 run (3 needed)")
+    assert verdicts["fails-absent"] == ("undecided", "absent: 0 runs")
+    assert rows["fails-absent"].measured == "—; 0 runs"
+    assert verdicts["faster-slow"] == ("holds", "CI above 0.5")
+    assert verdicts["faster-fast"] == ("undecided", "CI contains 0.5")
+    assert verdicts["slower"] == ("contradicted", "CI below 0.5")
+    assert verdicts["final-fast"] == ("holds", "CI inside [1.00, 1.00]")
+    assert verdicts["final-low"] == ("contradicted", "CI above [0.40, 0.60]")
+    assert verdicts["final-never"] == ("contradicted", "CI below [0.85, 0.95]")
+    assert verdicts["final-stopped"][0] == "undecided" and "3 of 3 runs were stopped by the stop rule" in verdicts["final-stopped"][1]
+    assert verdicts["elsewhere"] == ("undecided", "fast: 0 runs")
+    assert rows["by-fast"].measured == "first ≥ 0.9 IQM 4.0 [3.0, 5.0]; 3 runs, 0 censored"
+    assert rows["faster-slow"].measured == "P(fast beats slow) on first ≥ 0.9: 1.00 [1.00, 1.00]; 3 vs 3 runs"
+    assert rows["final-stopped"].measured == "success at 19 IQM 0.90 [0.90, 0.90]; 3 runs, 3 stopped early"
+    assert rows["faster-slow"].claim.claim == "Fast beats Slow"
+
+
+def test_the_command_writes_the_table_and_its_verdict_lines(results, capsys):
+    out = results / "claims.md"
+    claims.main([str(results), "--out", str(out)])
+    text = out.read_text()
+    assert text == capsys.readouterr().out
+    assert "| by-fast | Fast by 5 | 5 | first ≥ 0.9 IQM 4.0 [3.0, 5.0]; 3 runs, 0 censored | **holds**: CI ≤ 5.5 (5 + 10 %) |" in text
+    assert "- **contradicted** (5 of 15): toy: Slow by 5; Fast fails; Slow beats Fast; 0.5; 0.9\n" in text
+
+
+def test_a_claim_of_an_unknown_kind_or_without_its_figure_is_an_error(tmp_path):
+    path = tmp_path / "claims.yaml"
+    path.write_text("claims:\n  - {id: x, task: t, kind: sooner, groups: [a], claim: c, paper: p}\n")
+    with pytest.raises(ValueError, match="claim x: kind 'sooner'; allowed: reaches_by, fails, final, faster"):
+        claims.load_claims(path)
+    path.write_text("claims:\n  - {id: x, task: t, kind: reaches_by, groups: [a], claim: c, paper: p}\n")
+    with pytest.raises(ValueError, match="kind reaches_by needs by; by missing"):
+        claims.load_claims(path)
+
+
+def test_the_committed_claims_table_is_the_commands_output_and_the_readme_quotes_its_verdicts():
+    """After adding runs, regenerate it: python -m gchgg.claims docs/results --out docs/results/claims.md"""
+    loaded, settings = claims.load_claims(REPO / "docs/results/claims.yaml")
+    rows = claims.verdicts(REPO / "docs/results", loaded, **settings)
+    text = claims.render(rows, "python -m gchgg.claims docs/results --out docs/results/claims.md", **settings)
+    committed = (REPO / "docs/results/claims.md").read_text()
+    assert text == committed, "docs/results/claims.md is stale: regenerate it with the command above"
+    readme = (REPO / "README.md").read_text()
+    lines = [line for line in committed.splitlines() if line.startswith("- **")]  # the verdict lines
+    assert len(lines) == 3
+    for line in lines:
+        assert line in readme, f"README.md does not quote claims.md's verdict line {line[:40]!r}"

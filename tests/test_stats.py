@@ -1,0 +1,146 @@
+"""Interval estimates (gchgg.stats) against plainly written references: IQM, bootstrap CIs, probability of improvement."""
+
+from __future__ import annotations
+
+import itertools
+from fractions import Fraction
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from gchgg import stats
+
+
+def reference_iqm(values) -> float:
+    """Sort, cut floor(N / 4) from each end, average what is left (rliable's trimmed mean)."""
+    values = sorted(float(v) for v in np.ravel(values))
+    cut = len(values) // 4
+    kept = values[cut : len(values) - cut]
+    return sum(kept) / len(kept)
+
+
+def reference_poi(x, y, lower_is_better=False, x_censored=None, y_censored=None) -> Fraction:
+    """Count every pair: a win where x is observed and strictly better, a loss where y is, else half."""
+    x_censored = x_censored or [False] * len(x)
+    y_censored = y_censored or [False] * len(y)
+    total = Fraction(0)
+    for (a, ca), (b, cb) in itertools.product(zip(x, x_censored), zip(y, y_censored)):
+        a_better = a < b if lower_is_better else a > b
+        b_better = b < a if lower_is_better else b > a
+        if a_better and not ca:
+            total += 1
+        elif b_better and not cb:
+            total += 0
+        else:
+            total += Fraction(1, 2)
+    return total / (len(x) * len(y))
+
+
+@pytest.mark.parametrize("values, expected", [
+    ([1, 2, 3, 4], 2.5),  # 1 cut from each end
+    ([5, 1, 3], 3.0),  # nothing cut from 3
+    ([7], 7.0),
+    ([1, 2, 3, 4, 100, 5, 6, 7], 4.5),  # 2 cut from each end: 3, 4, 5, 6
+    ([10, 0, 0, 0, 10], 10 / 3),  # 1 cut from each end of 5: 0, 0, 10
+])
+def test_iqm_of_known_arrays(values, expected):
+    assert stats.iqm(values) == pytest.approx(expected)
+    assert stats.iqm(values) == pytest.approx(reference_iqm(values))
+
+
+def test_iqm_equals_scipys_trimmed_mean_and_pools_tasks():
+    rng = np.random.default_rng(3)
+    for n in range(1, 13):
+        values = rng.normal(size=n)
+        assert stats.iqm(values) == pytest.approx(scipy.stats.trim_mean(values, 0.25))
+    matrix = rng.normal(size=(5, 3))  # [runs, tasks]: rliable pools every score
+    assert stats.iqm(matrix) == pytest.approx(scipy.stats.trim_mean(matrix, 0.25, axis=None))
+    assert stats.iqm(matrix) == pytest.approx(reference_iqm(matrix))
+
+
+def test_an_empty_group_or_a_nan_score_is_an_error_not_a_nan():
+    with pytest.raises(ValueError, match="no runs"):
+        stats.iqm([])
+    with pytest.raises(ValueError, match="no runs"):
+        stats.iqm_interval([])
+    with pytest.raises(ValueError, match="NaN"):
+        stats.iqm([1.0, float("nan")])
+    with pytest.raises(ValueError, match="the same tasks"):
+        stats.probability_of_improvement(np.zeros((2, 2)), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="reps=0"):
+        stats.iqm_interval([1.0], reps=0)
+
+
+def test_the_bootstrap_interval_is_the_percentiles_of_a_resampling_loop():
+    """Vectorised resampling = a loop over resamples (scipy's trimmed mean, numpy's percentile) on the same draws."""
+    scores = np.array([[74.0, 0.62], [84.0, 0.55], [75.0, 0.71], [90.0, 0.40]])  # 4 runs, 2 tasks
+    estimate = stats.iqm_interval(scores, reps=300, rng=np.random.default_rng(7))
+    draws = np.random.default_rng(7).integers(0, 4, size=(300, 4, 2))  # per resample, per task: 4 runs drawn
+    means = []
+    for r in range(300):
+        resampled = np.stack([scores[draws[r, :, t], t] for t in range(2)], axis=1)  # runs stay within their task
+        means.append(scipy.stats.trim_mean(resampled, 0.25, axis=None))
+    assert (estimate.low, estimate.high) == pytest.approx(tuple(np.percentile(means, [2.5, 97.5])))
+    assert estimate.point == pytest.approx(reference_iqm(scores))
+    assert estimate.runs == 4
+
+
+def test_the_interval_contains_the_estimate_and_repeats_for_a_seed():
+    scores = [74.0, 84.0, 75.0, 79.0, 86.0]
+    estimate = stats.iqm_interval(scores)
+    assert estimate.low <= estimate.point <= estimate.high
+    assert stats.iqm_interval(scores) == estimate  # default: a generator seeded 0, so tables regenerate alike
+    assert stats.iqm_interval(scores, rng=np.random.default_rng(1)) == stats.iqm_interval(scores, rng=np.random.default_rng(1))
+    assert stats.iqm_interval([5.0, 5.0, 5.0]).format(1) == "5.0 [5.0, 5.0]"
+    assert stats.iqm_interval([5.0]) == stats.Estimate(5.0, 5.0, 5.0, 1)
+
+
+@pytest.mark.parametrize("x, y, lower", [
+    ([3, 1], [2, 2], False),
+    ([0.9, 0.9, 0.5], [0.9, 0.7], False),  # ties counted half
+    ([70, 90], [80, 90], True),  # fewer iterations beat
+    ([74, 84, 75], [79, 84, 86], True),
+    ([1, 2, 3, 4], [1, 2, 3, 4], True),
+])
+def test_probability_of_improvement_is_the_pair_count(x, y, lower):
+    expected = reference_poi(x, y, lower)
+    assert stats.probability_of_improvement(x, y, lower_is_better=lower) == pytest.approx(float(expected))
+    # the Mann-Whitney U of the better direction over n * m, as rliable computes it
+    u = scipy.stats.mannwhitneyu(np.negative(x) if lower else x, np.negative(y) if lower else y).statistic
+    assert stats.probability_of_improvement(x, y, lower_is_better=lower) == pytest.approx(u / (len(x) * len(y)))
+
+
+def test_known_fractions():
+    assert stats.probability_of_improvement([70, 90], [80, 90], lower_is_better=True) == 0.625  # 2.5 of 4
+    assert stats.probability_of_improvement([74, 84, 75], [79, 84, 86], lower_is_better=True) == pytest.approx(7.5 / 9)
+    assert stats.probability_of_improvement([1.0], [1.0]) == 0.5
+
+
+def test_censored_pairs_count_only_where_the_data_show_the_order():
+    # x: reached at 50, never reached by 100 (censored there); y: never reached by 200, never by 30 (ended at 30)
+    x, cx = [50, 100], [False, True]
+    y, cy = [200, 30], [True, True]
+    # 50 < 200 (censored): x wins. 50 vs 30 censored: y is only known to be >= 30: a tie.
+    # 100 censored vs 200 censored: a tie. 100 censored vs 30 censored: a tie (neither was seen at 0.9).
+    assert reference_poi(x, y, True, cx, cy) == Fraction(5, 8)  # (1 + 3 halves) of 4
+    assert stats.probability_of_improvement(x, y, lower_is_better=True, x_censored=cx, y_censored=cy) == 0.625
+    # every censored run at the same budget: exactly the uncensored pair count
+    x, y = [60, 200, 80], [200, 200, 90]
+    plain = stats.probability_of_improvement(x, y, lower_is_better=True)
+    censored = stats.probability_of_improvement(x, y, lower_is_better=True, x_censored=[False, True, False],
+                                                y_censored=[True, True, False])
+    assert plain == censored == pytest.approx(float(reference_poi(x, y, True)))
+
+
+def test_the_poi_interval_resamples_each_group_independently():
+    x, y = np.array([74.0, 84.0, 75.0]), np.array([79.0, 84.0, 86.0, 95.0])
+    estimate = stats.poi_interval(x, y, lower_is_better=True, reps=200, rng=np.random.default_rng(5))
+    rng = np.random.default_rng(5)
+    ix, iy = rng.integers(0, 3, size=(200, 3, 1)), rng.integers(0, 4, size=(200, 4, 1))
+    reference = [float(reference_poi(x[ix[r, :, 0]].tolist(), y[iy[r, :, 0]].tolist(), True)) for r in range(200)]
+    assert (estimate.low, estimate.high) == pytest.approx(tuple(np.percentile(reference, [2.5, 97.5])))
+    assert estimate.point == pytest.approx(float(reference_poi(x.tolist(), y.tolist(), True)))
+    assert (estimate.runs, estimate.other_runs) == (3, 4)
+    assert estimate.low <= estimate.point <= estimate.high
+    assert stats.poi_interval([1, 2], [5, 6], lower_is_better=True).format() == "1.00 [1.00, 1.00]"
