@@ -12,7 +12,8 @@ of the training-iteration floor (``benchmarks/iteration.py`` may import it).
 
 Both compare with the agent on torch's own BLAS (``matmul="default"``). The script then times that
 update against the faster one, the same agent with its layers on oneDNN (``matmul="onednn"``,
-:mod:`gchgg.linear`), in alternating rounds, and prints how far the two agree on one fixed batch
+:mod:`gchgg.linear`), and that one against the same with bfloat16 products (``precision="bfloat16"``,
+on CPUs with native bfloat16), in alternating rounds, and prints how far the two agree on one fixed batch
 (losses and gradients, relative to their largest entry) and how far their weights and actions drift
 apart over the run's updates, beside the drift of a torch-BLAS twin fed each batch in reverse row
 order: the same math, other float32 rounding, which training amplifies in both. ``--compile`` also times the same agent with
@@ -38,7 +39,7 @@ from tensordict import TensorDict  # noqa: E402
 from torch import nn  # noqa: E402
 
 from gchgg.agent import DDPGAgent  # noqa: E402
-from gchgg.linear import MIN_FEATURES, use_onednn  # noqa: E402
+from gchgg.linear import MIN_FEATURES, bf16_available, products_in, use_onednn  # noqa: E402
 
 
 def _mlp(in_features: int, out_features: int, hidden: int = 256, depth: int = 3) -> nn.Sequential:
@@ -180,6 +181,7 @@ def main() -> None:
     onednn = copy.deepcopy(agent)  # same weights, normalisers and optimiser state
     use_onednn(onednn.loss_module, "onednn", min_features=args.min_features)
     onednn_update(agent, onednn, batches, args.rounds, args.updates, args.min_features)
+    bf16_update(onednn, batches, args.rounds, args.updates)
     if args.compile:
         compiled_update(agent, batches, args.rounds, args.updates)
     if args.profile:
@@ -194,10 +196,11 @@ def _fixed_batch_agreement(a: DDPGAgent, b: DDPGAgent, batch) -> tuple[float, fl
     grads = []
     for agent in (a, b):
         loss = agent.loss_module
-        out = loss.losses(*loss.inputs(batch))
-        for p in loss.parameters():
-            p.grad = None
-        (out[0] + out[1]).backward()
+        with products_in(agent.precision):
+            out = loss.losses(*loss.inputs(batch))
+            for p in loss.parameters():
+                p.grad = None
+            (out[0] + out[1]).backward()
         grads.append([p.grad.clone() for p in loss.parameters() if p.grad is not None])
         gaps.append(out[:2])
         for p in loss.parameters():
@@ -248,6 +251,24 @@ def onednn_update(agent: DDPGAgent, onednn: DDPGAgent, batches, rounds: int, upd
     print(f"  after {rounds * updates} updates, actor weights / actions apart by: oneDNN vs torch BLAS "
           "{:.2g} / {:.2g}; torch BLAS vs the same on reversed batches {:.2g} / {:.2g}".format(
               *_drift(agent, onednn, fresh), *_drift(agent, twin, fresh)))
+
+
+def bf16_update(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
+    """The oneDNN float32 update against a copy with ``precision="bfloat16"`` (bfloat16 products,
+    float32 accumulation, parameters and optimiser state), alternating rounds; their agreement on a
+    fixed batch and how far they drift apart."""
+    if not bf16_available():
+        print("bfloat16 products (precision=bfloat16): skipped, this CPU or torch has no native bfloat16 oneDNN products")
+        return
+    candidate = copy.deepcopy(onednn)
+    candidate.precision = "bfloat16"
+    loss_gap, grad_gap = _fixed_batch_agreement(onednn, candidate, batches[0])
+    fp32, bf16 = _alternate(onednn, candidate, batches, rounds, updates)
+    print(f"bfloat16 products (precision=bfloat16, oneDNN): {statistics.median(bf16) * 1e3:.3f} ms/update against "
+          f"{statistics.median(fp32) * 1e3:.3f} in float32 on oneDNN: speed-up {statistics.median(fp32) / statistics.median(bf16):.2f}x")
+    print(f"  one fixed batch: losses agree to {loss_gap:.1e}, gradients to {grad_gap:.1e} of their largest entry; "
+          "after {} updates actor weights / actions apart by {:.2g} / {:.2g}".format(
+              rounds * updates, *_drift(onednn, candidate, batches[-1])))
 
 
 def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> None:

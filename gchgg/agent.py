@@ -38,7 +38,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import MLP
 
-from gchgg.linear import use_onednn
+from gchgg.linear import products_in, resolve_matmul, resolve_precision, use_onednn
 from gchgg.validation import check_number
 
 __all__ = [
@@ -501,6 +501,10 @@ class DDPGAgent:
         matmul: who computes the wide layers' products, one of :data:`gchgg.linear.MATMUL_BACKENDS`
             (``"auto"``: oneDNN where this torch has it). Speed only: it is not a hyperparameter,
             is not saved, and a state loads under any backend.
+        precision: the dtype of those products in :meth:`update`, one of :data:`gchgg.linear.PRECISIONS`:
+            ``"float32"`` (default) or ``"bfloat16"`` (oneDNN's native bfloat16 products on CPUs with
+            AVX-512 BF16 or AMX; ``benchmarks/agent_update.py --precision bfloat16`` times it). Unlike
+            ``matmul`` it changes the numbers (rounding), so runs record it; acting stays float32.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
     The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
@@ -534,6 +538,7 @@ class DDPGAgent:
         *,
         generator: torch.Generator | None = None,
         matmul: str = "auto",
+        precision: str = "float32",
         **overrides: Any,
     ) -> None:
         unknown = set(overrides) - {f.name for f in fields(DDPGConfig)}
@@ -557,6 +562,10 @@ class DDPGAgent:
             actor, critic, gamma=config.gamma, action_l2=config.action_l2, clip_return=config.clip_return
         )
         use_onednn(self.loss_module, matmul)  # the online and the target networks
+        self.precision = resolve_precision(precision)
+        if precision != "float32" and resolve_matmul(matmul) != "onednn":
+            raise ValueError(f"precision={precision!r} computes the products with oneDNN, but matmul={matmul!r} "
+                             "resolves to torch's BLAS; use matmul=auto or matmul=onednn, or precision=float32")
         # fused Adam: one kernel per step instead of several per parameter
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
@@ -697,6 +706,10 @@ class DDPGAgent:
         Raises:
             FloatingPointError: a loss is NaN or inf; no parameter is changed.
         """
+        with products_in(self.precision):
+            return self._update(batch)
+
+    def _update(self, batch: TensorDictBase) -> dict[str, float]:
         loss = self.loss_module
         loss_actor, loss_value, pred_value, target_value = loss.losses(*loss.inputs(batch))
         values = torch.stack([loss_actor.detach(), loss_value.detach(), pred_value.mean(), target_value.mean()])

@@ -20,14 +20,16 @@ torch's own BLAS.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+from collections.abc import Iterator
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["MATMUL_BACKENDS", "MIN_BATCH", "MIN_FEATURES", "OneDNNLinear", "onednn_available", "resolve_matmul",
-           "use_onednn"]  # fmt: skip
+__all__ = ["MATMUL_BACKENDS", "MIN_BATCH", "MIN_FEATURES", "PRECISIONS", "OneDNNLinear", "bf16_available",
+           "onednn_available", "products_in", "resolve_matmul", "resolve_precision", "use_onednn"]  # fmt: skip
 
 MATMUL_BACKENDS = ("auto", "onednn", "default")
 """``auto``: oneDNN where this torch has it, else torch's BLAS; ``onednn``: oneDNN or an error;
@@ -45,31 +47,74 @@ input layers (observation, goal and, in the critic, action: 31 features on push_
 oneDNN (``benchmarks/agent_update.py --min-features 64`` times it with the hidden layers alone)."""
 
 
+PRECISIONS = ("float32", "bfloat16")
+"""The dtype of the wide layers' products inside :func:`products_in`: ``float32`` (the math as
+written) or ``bfloat16`` (inputs and weights rounded to bfloat16, float32 accumulation, results
+rounded to bfloat16 and returned as float32; parameters, gradients and optimiser state stay float32)."""
+
+_product_dtype = torch.float32  # set by products_in
+
+
+@contextlib.contextmanager
+def products_in(precision: str) -> Iterator[None]:
+    """Within the block, :class:`OneDNNLinear` layers compute their products (forward and the backward
+    of a ``backward()`` called in the block) in ``precision``, one of :data:`PRECISIONS`.
+
+    The agent wraps its update in it; acting, evaluation and export stay float32.
+
+    >>> layer = use_onednn(nn.Sequential(nn.Linear(256, 256)), backend="onednn")[0]
+    >>> x = torch.randn(64, 256)
+    >>> with products_in("bfloat16"):
+    ...     y = layer(x)
+    >>> y.dtype, bool(torch.allclose(y, layer(x), rtol=0.05, atol=0.05)), bool(torch.equal(y, layer(x)))
+    (torch.float32, True, False)
+    """
+    global _product_dtype
+    dtype = getattr(torch, resolve_precision(precision))
+    previous, _product_dtype = _product_dtype, dtype
+    try:
+        yield
+    finally:
+        _product_dtype = previous
+
+
 def _linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
     """``x·weightᵀ + bias`` by oneDNN; ``x`` [B, in] and ``weight`` [out, in] may be strided views."""
     return torch.ops.mkldnn._linear_pointwise(x, weight, bias, "none", [], "")
 
 
+def _product(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
+    """:func:`_linear` on ``x`` and ``weight`` rounded to ``dtype``, returned as float32."""
+    if dtype == torch.float32:
+        return _linear(x, weight, bias)
+    return _linear(x.to(dtype), weight.to(dtype), bias).float()
+
+
 class _OneDNNLinearFunction(torch.autograd.Function):
-    """``y = x·Wᵀ + b`` with its three gradients, each one oneDNN product (no transposed copies)."""
+    """``y = x·Wᵀ + b`` with its three gradients, each one oneDNN product (no transposed copies),
+    in the product dtype given (the backward uses the forward's)."""
 
     @staticmethod
-    def forward(ctx, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    def forward(ctx, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
+        if dtype != torch.float32:  # round once; the backward reuses the rounded copies
+            x, weight = x.to(dtype), weight.to(dtype)
         ctx.save_for_backward(x, weight)
         ctx.has_bias = bias is not None
-        return _linear(x, weight, bias)
+        y = _linear(x, weight, bias)
+        return y if dtype == torch.float32 else y.float()
 
     @staticmethod
     def backward(ctx, grad_y: torch.Tensor):
         x, weight = ctx.saved_tensors
+        grad_y = grad_y.to(x.dtype)
         grad_x = grad_weight = grad_bias = None
         if ctx.needs_input_grad[0]:
-            grad_x = _linear(grad_y, weight.t(), None)  # ∂y·W
+            grad_x = _linear(grad_y, weight.t(), None).float()  # ∂y·W
         if ctx.needs_input_grad[1]:
-            grad_weight = _linear(grad_y.t(), x.t(), None)  # ∂yᵀ·x
+            grad_weight = _linear(grad_y.t(), x.t(), None).float()  # ∂yᵀ·x
         if ctx.has_bias and ctx.needs_input_grad[2]:
-            grad_bias = grad_y.sum(0)
-        return grad_x, grad_weight, grad_bias
+            grad_bias = grad_y.float().sum(0)
+        return grad_x, grad_weight, grad_bias, None
 
 
 class OneDNNLinear(nn.Linear):
@@ -97,8 +142,8 @@ class OneDNNLinear(nn.Linear):
             and x.device.type == "cpu"
         ):
             if torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad):
-                return _OneDNNLinearFunction.apply(x, self.weight, self.bias)
-            return _linear(x, self.weight, self.bias)  # nothing to differentiate: no autograd node
+                return _OneDNNLinearFunction.apply(x, self.weight, self.bias, _product_dtype)
+            return _product(x, self.weight, self.bias, _product_dtype)  # nothing to differentiate: no autograd node
         return F.linear(x, self.weight, self.bias)
 
 
@@ -112,6 +157,29 @@ def onednn_available() -> bool:
         return bool(torch.equal(_linear(x, weight, None), torch.full((2, 4), 3.0)))
     except (AttributeError, RuntimeError, NotImplementedError):
         return False
+
+
+@functools.cache
+def bf16_available() -> bool:
+    """Whether oneDNN computes bfloat16 products natively on this CPU (AVX-512 BF16, AMX)."""
+    return onednn_available() and bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+
+
+def resolve_precision(precision: str) -> str:
+    """Check a ``precision`` setting (one of :data:`PRECISIONS`) against this machine; returns it.
+
+    Raises:
+        ValueError: ``precision`` is not one of :data:`PRECISIONS`.
+        RuntimeError: ``bfloat16`` on a CPU or torch build without native bfloat16 oneDNN products.
+    """
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+    if precision == "bfloat16" and not bf16_available():
+        raise RuntimeError(
+            "precision='bfloat16' needs oneDNN with native bfloat16 products (AVX-512 BF16 or AMX), which this "
+            "CPU or torch build lacks; use precision=float32"
+        )
+    return precision
 
 
 def resolve_matmul(matmul: str) -> str:

@@ -151,3 +151,39 @@ def test_load_policy_takes_the_backend_and_the_state_loads_under_either():
     obs, goal = torch.randn(256, 25), torch.randn(256, 3)
     with torch.no_grad():
         torch.testing.assert_close(fast(obs, goal), plain(obs, goal), rtol=1e-5, atol=1e-6)
+
+
+needs_bf16 = pytest.mark.skipif(not linear.bf16_available(), reason="no native bfloat16 oneDNN products here")
+
+
+def _bf16(t: torch.Tensor) -> torch.Tensor:
+    return t.to(torch.bfloat16).double()
+
+
+@needs_bf16
+def test_bfloat16_products_are_float32_results_of_rounded_inputs():
+    """Inside products_in("bfloat16"): y and the gradients equal float64 products of bfloat16-rounded
+    operands (then rounded to bfloat16); outside, the layer is float32 again."""
+    g = torch.Generator().manual_seed(0)
+    layer = OneDNNLinear(64, 128)
+    x = torch.randn(MIN_BATCH, 64, generator=g).requires_grad_(True)
+    grad_y = torch.randn(MIN_BATCH, 128, generator=g)
+    with linear.products_in("bfloat16"):
+        y = layer(x)
+        y.backward(grad_y)
+    w, b = layer.weight.detach(), layer.bias.detach()
+    assert y.dtype == x.grad.dtype == layer.weight.grad.dtype == torch.float32
+    expected = _bf16(x.detach()) @ _bf16(w).T + b.double()
+    torch.testing.assert_close(y.double(), expected, rtol=2**-7, atol=1e-2)
+    torch.testing.assert_close(x.grad.double(), _bf16(grad_y) @ _bf16(w), rtol=2**-7, atol=1e-2)
+    torch.testing.assert_close(layer.weight.grad.double(), _bf16(grad_y).T @ _bf16(x.detach()), rtol=2**-7, atol=5e-2)
+    assert not torch.equal(y, layer(x))  # float32 outside the block
+    torch.testing.assert_close(layer(x).double(), x.detach().double() @ w.double().T + b.double(), rtol=1e-5, atol=1e-5)
+
+
+def test_precision_setting_is_checked():
+    with pytest.raises(ValueError, match="precision must be one of \\['float32', 'bfloat16'\\], got 'fp16'"):
+        linear.resolve_precision("fp16")
+    if linear.bf16_available():
+        with pytest.raises(ValueError, match="precision='bfloat16' computes the products with oneDNN, but matmul='default'"):
+            DDPGAgent(5, 3, 2, hidden=(32,), matmul="default", precision="bfloat16")
