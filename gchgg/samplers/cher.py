@@ -315,7 +315,7 @@ def nearest_other(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     the same distance the k-d tree chooses.
 
     Exact copies are grouped first (a hash of the coordinates' bits, checked), so the k-d tree is
-    built and queried on distinct points only: a pool where an object at rest repeats one position
+    built on distinct points only and queried only for points without copies: a pool where an object at rest repeats one position
     thousands of times costs no more than its distinct positions (``benchmarks/samplers.py``).
 
     Args:
@@ -335,12 +335,13 @@ def nearest_other(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     _, first, group, copies = np.unique(mix, return_index=True, return_inverse=True, return_counts=True)
     if not np.array_equal(points[first[group]], points):  # a hash collision: group by the coordinates themselves
         _, first, group, copies = np.unique(points, axis=0, return_index=True, return_inverse=True, return_counts=True)
-    distinct = points[first]
-    if len(distinct) > 1:
-        distance, index = cKDTree(distinct).query(distinct, k=2)
-        index, distance = first[index[group, 1]], distance[group, 1]
-    else:
-        index, distance = np.zeros(n, dtype=np.int64), np.zeros(n)
+    index, distance = np.zeros(n, dtype=np.int64), np.zeros(n)
+    single = np.flatnonzero(copies == 1)  # the groups whose nearest point is another position: ask the tree
+    if len(first) > 1 and len(single):
+        distinct = points[first]
+        near, other = cKDTree(distinct).query(distinct[single], k=2)
+        lone = first[single]
+        index[lone], distance[lone] = first[other[:, 1]], near[:, 1]
     repeated = copies[group] > 1
     order = np.argsort(_small(group), kind="stable")  # each group's members in increasing index
     second = order[np.cumsum(copies) - copies + np.minimum(copies - 1, 1)]
