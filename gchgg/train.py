@@ -44,7 +44,7 @@ from torchrl.envs import TransformedEnv  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg import checkpoint  # noqa: E402
+from gchgg import checkpoint, fork  # noqa: E402
 from gchgg.agent import DDPGAgent, DDPGConfig  # noqa: E402
 from gchgg.builders import (  # noqa: E402
     check_positive,
@@ -688,7 +688,9 @@ def requeued() -> bool:
 
 def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
     """Trains with ``cfg`` in ``run_dir``, resuming from its checkpoint when ``cfg.resume`` or when
-    the job was requeued by SLURM (:func:`requeued`)."""
+    the job was requeued by SLURM (:func:`requeued`). With ``init_from=<run folder>`` a new run starts
+    from that run's checkpoint (:mod:`gchgg.fork`: its metrics rows, then this run's); once it has
+    its own checkpoint, ``resume=true`` continues it from there."""
     run_dir.mkdir(parents=True, exist_ok=True)
     path = run_dir / CHECKPOINT
     resume = bool(cfg.resume) or requeued()
@@ -697,6 +699,10 @@ def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
             f"run folder {run_dir} already holds a checkpoint: pass resume=true to continue that run, "
             f"or hydra.run.dir=<folder> (or another seed) for a new one"
         )
+    source = None
+    if cfg.get("init_from") is not None and not path.exists():
+        check_config(cfg)
+        source = fork.prepare(cfg, run_dir, CHECKPOINT)  # refuses incompatible settings before anything is built
     for folder in (run_dir, run_dir / REPLAY):  # what a save killed before its rename left behind
         checkpoint.remove_temporaries(folder)
     trainer = Trainer(cfg, run_dir)
@@ -705,6 +711,10 @@ def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
     if resume and path.exists():
         trainer.load_state_dict(checkpoint.load(path))
         print(f"resumed {run_dir} after iteration {trainer.iteration}")
+    elif source is not None:
+        fork.start(source, trainer)
+        trainer.save()  # the fork's own checkpoint: resume=true continues it from here
+        trainer.write_metrics()
     return trainer.train()
 
 
