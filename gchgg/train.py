@@ -58,7 +58,7 @@ from gchgg.builders import (  # noqa: E402
 )
 from gchgg.evaluator import BackgroundEvaluator, env_state  # noqa: E402
 from gchgg.hgg import estimate_max_distance  # noqa: E402
-from gchgg.linear import MATMUL_BACKENDS, resolve_matmul  # noqa: E402
+from gchgg.linear import MATMUL_BACKENDS, PRECISIONS, resolve_matmul  # noqa: E402
 from gchgg.replay_log import ReplayLog  # noqa: E402
 from gchgg.rollout import collect, evaluate, fraction  # noqa: E402
 from gchgg.validation import check_choice, check_number  # noqa: E402
@@ -108,6 +108,7 @@ def check_config(cfg: DictConfig) -> None:
         )
     check_choice("agent.normalizer_source", cfg.agent.normalizer_source, NORMALIZER_SOURCES)
     check_choice("matmul", cfg.matmul, MATMUL_BACKENDS)
+    check_choice("precision", cfg.get("precision", "float32"), PRECISIONS)
     if cfg.train.stop_success is not None:
         check_number("train.stop_success (a success rate, or null)", cfg.train.stop_success, low=0, high=1)
     if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
@@ -218,6 +219,7 @@ class Trainer:
             agent_config(cfg),
             generator=torch.Generator().manual_seed(int(seeds[4])),
             matmul=cfg.matmul,
+            precision=cfg.get("precision", "float32"),
         )
         self.goal_generator = None
         if algo.goal_generator != "none":
