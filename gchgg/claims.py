@@ -2,9 +2,10 @@
 
     python -m gchgg.claims docs/results --out docs/results/claims.md [--claims docs/results/claims.yaml]
 
-Reads the runs of each claim's task from ``<results>/<task>/`` (its ``*.csv``, or run folders under it,
-as :func:`gchgg.plot.find_runs` does), scores them as :mod:`gchgg.plot` does (first ≥ 0.9 censored at
-the run's budget or end; the success rate held past a run's end) and writes a Markdown table: per
+Reads the runs of each claim's task from the files ``<results>/<task>/<group>-seed<N>.csv`` (every seed
+there; not ``unfinished/`` nor ``invalid/``), scores them as :mod:`gchgg.plot` does (first ≥ 0.9: a run
+that never got there is censored at its budget or its end, whichever comes first, and counted one
+past it; the success rate held past a run's end) and writes a Markdown table: per
 claim the claim, the paper's figure, the measured one (IQM [95 % CI] or a probability of improvement
 [95 % CI], :mod:`gchgg.stats`; the runs it rests on) and a verdict, *holds*, *contradicted* or
 *undecided*, with its reason. Below the table, one line per verdict lists its claims: the lines the
@@ -15,14 +16,16 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
 
 - ``reaches_by`` (``by`` N): first ≥ 0.9 of the group. Holds if the IQM's CI upper bound ≤ N · (1 +
   ``slack``), contradicted if its lower bound is above that, else undecided.
-- ``fails`` (``within`` W): first ≥ 0.9. Holds if every run is censored (none reached 0.9),
+- ``fails`` (``within`` W): first ≥ 0.9. Holds if every run is censored (none reached 0.9; the reason
+  names the iterations they were censored at, below W for a run abandoned before its budget),
   contradicted if the IQM's CI upper bound < W, else undecided.
 - ``final`` (``level`` m, ``spread`` s): the success rate at the last iteration of the task's budget,
   each run held at its last value past its end. Holds if the IQM's CI lies inside [m − s, m + s];
   contradicted if it lies wholly above, or wholly below while no run stopped early by the stop rule
   (a run that reached 0.9 and ended before its budget: the stop rule ended it soon after holding 0.9,
   so its last value says nothing of a policy trained on to the budget); else undecided.
-- ``faster`` (``than`` B): P(a run of the group reaches 0.9 in fewer iterations than a run of B).
+- ``faster`` (``than`` B): P(a run of the group reaches 0.9 in fewer iterations than a run of B), ties
+  and pairs whose order censoring leaves open counted half (:func:`gchgg.stats.probability_of_improvement`).
   Holds if its CI lies above 0.5, contradicted if below 0.5, else undecided.
 
 An entry with a list of ``groups`` (or of ``than``) is one claim per member; ``{name}`` and
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,7 +45,7 @@ import numpy as np
 
 from gchgg import plot, stats
 
-__all__ = ["Claim", "Row", "judge", "load_claims", "main", "measure", "render", "summary", "verdicts"]
+__all__ = ["Claim", "Row", "judge", "load_claims", "main", "measure", "render", "seed_files", "summary", "verdicts"]
 
 KINDS = {"reaches_by": ("by",), "fails": ("within",), "final": ("level", "spread"), "faster": ("than",)}
 """Each kind of claim and the fields it needs besides id, task, groups, claim and paper."""
@@ -119,21 +123,33 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
     return claims, settings
 
 
-def measure(results: str | Path, task: str) -> tuple[dict[str, plot.Scores], dict[str, tuple[np.ndarray, int]]]:
-    """The runs of ``<results>/<task>`` by group label: their :class:`gchgg.plot.Scores`, and each run's
-    success rate at the task's last budget iteration (held past its end) with how many runs stopped
-    early by the stop rule (reached 0.9 and ended before their budget). Empty if the folder is absent."""
-    folder = Path(results) / task
-    if not folder.is_dir():
+SEED_FILE = re.compile(r"^(?P<group>.+)-seed\d+\.csv$")
+"""A run's CSV in a task's folder: ``<group>-seed<N>.csv`` (``gchgg-seed0.csv``)."""
+
+
+def seed_files(folder: str | Path) -> list[Path]:
+    """The runs' CSVs directly in ``folder`` named ``<group>-seed<N>.csv`` (not those in its subfolders,
+    ``unfinished/`` or ``invalid/``, nor other CSVs), sorted by name."""
+    folder = Path(folder)
+    return sorted(p for p in folder.glob("*.csv") if p.is_file() and SEED_FILE.match(p.name))
+
+
+def measure(results: str | Path, task: str) -> tuple[dict[str, plot.Scores], dict[str, tuple[np.ndarray, int, int]]]:
+    """The runs of ``<results>/<task>/<group>-seed<N>.csv`` by group: their :class:`gchgg.plot.Scores` (the
+    AUC's range common to all the task's groups), and each run's success rate at the last iteration of
+    its budget (held past its end) with how many runs stopped early by the stop rule (reached 0.9 and
+    ended before their budget) and the budget's last iteration. Empty if there are no such files."""
+    files = seed_files(Path(results) / task)
+    if not files:
         return {}, {}
-    groups = plot.group_runs(plot.find_runs([folder]))
+    groups = plot.group_runs([plot.load_run(p) for p in files])
     group_scores = plot.scores(groups)
     scores, finals = {}, {}
     for (_, label), runs in groups.items():
         s = scores[label] = group_scores[task, label]
-        at_end = np.array([r.column("success_rate")[: s.auc_range][-1] for r in runs])
+        at_end = np.array([r.column("success_rate")[:b][-1] for r, b in zip(runs, s.budgets)])
         stopped = sum(not c and int(r.rows[-1]["iteration"]) + 1 < b for r, c, b in zip(runs, s.censored, s.budgets))
-        finals[label] = (at_end, stopped)
+        finals[label] = (at_end, stopped, max(s.budgets) - 1)
     return scores, finals
 
 
@@ -150,7 +166,7 @@ def _number(value: float) -> str:
     return f"{value:g}"
 
 
-def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[np.ndarray, int]],
+def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[np.ndarray, int, int]],
           min_runs: int = 3, slack: float = 0.1) -> Row:
     """The claim's row: its measured figure and its verdict by the rule of its kind (module docstring)."""
     runs = {label: s.runs for label, s in scores.items()}
@@ -176,7 +192,7 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
             return Row(claim, first_text, "undecided", few, True)
         censored = int(mine.censored.sum())
         if censored == mine.runs:
-            at = sorted({int(v) for v in mine.first})
+            at = sorted(set(mine.censored_at))
             where = f"{at[0]}" if len(at) == 1 else f"{at[0]}–{at[-1]}"
             return Row(claim, first_text, "holds", f"no run reached 0.9 (censored at {where})")
         if first.high < claim.within:
@@ -184,9 +200,9 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
         return Row(claim, first_text, "undecided", f"{mine.runs - censored} of {mine.runs} runs reached 0.9; "
                                                    f"CI reaches {_number(claim.within)}")
     if claim.kind == "final":
-        values, stopped = finals[claim.group]
+        values, stopped, last = finals[claim.group]
         end = stats.iqm_interval(values)
-        text = (f"success at {mine.auc_range - 1} IQM {end.format(2)}; {mine.runs} run{'s' * (mine.runs != 1)}, "
+        text = (f"success at {last} IQM {end.format(2)}; {mine.runs} run{'s' * (mine.runs != 1)}, "
                 f"{stopped} stopped early")
         low, high = claim.level - claim.spread, claim.level + claim.spread
         band = f"[{low:.2f}, {high:.2f}]"
@@ -207,7 +223,7 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     other = scores.get(claim.than)
     if other is None:
         return Row(claim, f"{first_text}; {claim.than}: 0 runs", "undecided", few, True)
-    poi = stats.poi_interval(mine.first, other.first, lower_is_better=True, x_censored=mine.censored,
+    poi = stats.poi_interval(mine.first_bound, other.first_bound, lower_is_better=True, x_censored=mine.censored,
                              y_censored=other.censored)
     text = f"P({claim.group} beats {claim.than}) on first ≥ {plot.THRESHOLD}: {poi.format(2)}; {mine.runs} vs {other.runs} runs"
     if few:
@@ -252,8 +268,9 @@ def render(rows: Sequence[Row], command: str, min_runs: int = 3, slack: float = 
         f"Generated by `{command}` from the runs in each task's folder (its CSVs) and the claims in",
         "[claims.yaml](claims.yaml) (what each claim measures, and the verdict rules); do not edit by hand.",
         "first ≥ 0.9: a run's first iteration at an evaluation success rate ≥ 0.9; a run that never got there",
-        "is censored at its last iteration + 1 or its budget, whichever is smaller (the Fig. 5 budgets:",
-        "`conf/experiment/fig5_<task>.yaml`). IQM [95 % CI]: interquartile mean over runs with a",
+        "is censored at the number of iterations it ran or its budget, whichever is smaller, and counted",
+        "one past it (the Fig. 5 budgets: `conf/experiment/fig5_<task>.yaml`; the runs: `<task>/<group>-seed<N>.csv`).",
+        "IQM [95 % CI]: interquartile mean over runs with a",
         "stratified-bootstrap interval; P(A beats B): probability of improvement, ties counted half",
         f"(`gchgg/stats.py`, rliable's definitions). Undecided below {min_runs} runs per group; \"by N\" claims hold",
         f"up to N + {100 * slack:g} %.",

@@ -1,7 +1,7 @@
 """Curves and tables over seeds: median and interquartile range of a metric per group of runs.
 
     python -m gchgg.plot RUN_OR_SWEEP_OR_CSV... [--out FIG.png] [--table TABLE.md] [--y COLUMN...]
-    python -m gchgg.plot docs/results/push_new --compare gchgg ghgg
+    python -m gchgg.plot docs/results/push_new --compare gchgg ghgg [--budget N] [--auc-range R]
 
 Each argument is a run folder (``metrics.csv`` and the ``config.yaml`` the trainer saves), a folder
 holding such runs at any depth (a sweep), a ``metrics.csv``-style file, or a folder of such files
@@ -28,14 +28,19 @@ Two scores per run, summarised per group by their interquartile mean with a 95 %
 interval (:mod:`gchgg.stats`, rliable's definitions), are in the table too:
 
 - **first ≥ 0.9**, censored: :func:`first_at` 0.9 if it is below the run's budget B. A run that did
-  not get there is *censored* at ``min(L, B)``, L its last iteration + 1 (the first iteration it did
-  not run; iterations count from 0): at B, the first iteration past its budget ("budget + 1" counted
-  from 1), if it ran its budget, and at its own length if it ended before (a pick_obstacle run
-  abandoned at 0.00 after 200 of 400 iterations is censored at 200, not counted as failing at 400).
-  A run that stopped early by ``train.stop_success`` had reached 0.9.
-- **AUC**: the mean evaluation success rate over iterations 0 … R − 1, R the largest budget of the
-  task's runs (the same range for every group of a task), each run held at its last value as the
-  curves hold it: a fraction in [0, 1].
+  not get there is *censored* at ``C = min(L, B)``, L its last iteration + 1 (the number of
+  iterations it ran; iterations count from 0), and counted at ``C + 1``: at B + 1, the issue's
+  "budget + 1", if it ran its budget, and at its own length + 1 if it ended before (a pick_obstacle
+  run abandoned at 0.00 after 200 of 400 iterations is censored at 200 and counted at 201, not as
+  failing at 400). Every count of a censored run is above every first iteration a run of the same
+  budget can show (at most B − 1). A run that stopped early by ``train.stop_success`` had reached
+  0.9 and is not censored.
+- **AUC**: the mean evaluation success rate over iterations 0 … R − 1, a fraction in [0, 1], each
+  run shorter than R held at its last value as the curves hold it. R is common to the groups
+  compared on a task (all of the task's groups in the table, the two in ``--compare``): the smallest
+  budget among their runs, or the length of their shortest censored run if that is shorter (so no
+  run that never reached 0.9 is extended past its end); ``--auc-range R`` sets it. The table and
+  ``--compare`` print it.
 
 A run's budget B is ``--budget`` if given, else ``train.iterations`` of its saved config, else that
 of the task's Fig. 5 experiment (``conf/experiment/fig5_<task>.yaml``: reach 15, push_new 200,
@@ -61,8 +66,8 @@ import numpy as np
 
 from gchgg import stats
 
-__all__ = ["Run", "Scores", "budget_of", "compare", "find_runs", "first_score", "group_runs", "iqr", "plot",
-           "scores", "table"]
+__all__ = ["Run", "Scores", "auc", "auc_range", "budget_of", "compare", "find_runs", "first_score", "group_runs",
+           "iqr", "plot", "scores", "table"]
 
 _IGNORED = ("seed", "resume", "threads", "matmul", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
 _SEED_SUFFIX = re.compile(r"-seed\d+$")
@@ -248,20 +253,23 @@ def budget_of(run: Run, override: int | None = None) -> int | None:
 
 def first_score(run: Run, budget: int, threshold: float = THRESHOLD) -> tuple[int, bool]:
     """``(iteration, censored)``: the first iteration at ``success_rate`` ≥ ``threshold`` if below ``budget``
-    (:func:`first_at`), else ``min(last iteration + 1, budget)`` marked censored (see the module's docstring).
+    (:func:`first_at`), else ``min(last iteration + 1, budget) + 1`` marked censored: one past the
+    iteration the run is censored at (see the module's docstring).
 
     >>> run = Run(Path("r.csv"), "t", rows=[{"iteration": i, "success_rate": s} for i, s in enumerate([0, 0.5, 0.9])])
     >>> first_score(run, 200), first_score(run, 2), first_score(run, 200, threshold=0.95)
-    ((2, False), (2, True), (3, True))
+    ((2, False), (3, True), (4, True))
     """
     first = first_at(run, threshold)
     if first < budget:
         return int(first), False
-    return min(int(run.rows[-1]["iteration"]) + 1, budget), True
+    return min(int(run.rows[-1]["iteration"]) + 1, budget) + 1, True
 
 
 def auc(run: Run, iterations: int, column: str = "success_rate") -> float:
     """The mean of ``column`` over iterations 0 … ``iterations`` − 1, the run held at its last value past its end."""
+    if iterations < 1:
+        raise ValueError(f"AUC range {iterations}: the mean over iterations 0 … R − 1 needs R ≥ 1")
     values = run.column(column)
     held = np.concatenate([values, np.full(max(iterations - len(values), 0), values[-1])])[:iterations]
     if np.isnan(held).any():
@@ -272,7 +280,7 @@ def auc(run: Run, iterations: int, column: str = "success_rate") -> float:
 @dataclass
 class Scores:
     """One group's per-run scores: first ≥ 0.9 (censored or not) under each run's budget, and the AUC
-    over the task's common range ``auc_range``."""
+    over the common range ``auc_range`` of the groups it was compared with."""
 
     first: np.ndarray
     censored: np.ndarray
@@ -284,8 +292,19 @@ class Scores:
     def runs(self) -> int:
         return len(self.first)
 
+    @property
+    def censored_at(self) -> list[int]:
+        """The iteration each censored run is censored at (its count in ``first`` less 1)."""
+        return [int(f) - 1 for f, c in zip(self.first, self.censored) if c]
+
+    @property
+    def first_bound(self) -> np.ndarray:
+        """first ≥ 0.9 as the probability of improvement reads it: the iteration where observed, and where
+        censored the iteration it was censored at, a bound (its true first iteration is that or later)."""
+        return self.first - self.censored
+
     def first_interval(self, rng: np.random.Generator | None = None) -> stats.Estimate:
-        """IQM [95 % CI] of first ≥ 0.9 (censored runs at their censoring iteration)."""
+        """IQM [95 % CI] of first ≥ 0.9 (censored runs counted one past their censoring iteration)."""
         return stats.iqm_interval(self.first, rng=rng)
 
     def auc_interval(self, rng: np.random.Generator | None = None) -> stats.Estimate:
@@ -293,22 +312,36 @@ class Scores:
         return stats.iqm_interval(self.auc, rng=rng)
 
 
-def scores(groups: dict[tuple[str, str], list[Run]], budget: int | None = None) -> dict[tuple[str, str], Scores]:
-    """Each group's :class:`Scores`; ``budget`` overrides every run's (see :func:`budget_of`). A run whose
-    budget is not known gets its task's longest run's length."""
+def auc_range(runs: Sequence[Run], budgets: Sequence[int], censored: Sequence[bool]) -> int:
+    """The AUC's common range R for ``runs`` (those of the groups compared on one task): the smallest of
+    their ``budgets``, or the length (last iteration + 1) of their shortest ``censored`` run if shorter."""
+    ends = [int(r.rows[-1]["iteration"]) + 1 for r, c in zip(runs, censored) if c]
+    return min([*budgets, *ends])
+
+
+def scores(groups: dict[tuple[str, str], list[Run]], budget: int | None = None,
+           auc_iterations: int | None = None) -> dict[tuple[str, str], Scores]:
+    """Each group's :class:`Scores`; ``budget`` overrides every run's (see :func:`budget_of`), and
+    ``auc_iterations`` the AUC's range R, else :func:`auc_range` over the task's runs in ``groups``
+    (pass only the groups to compare). A run whose budget is not known gets its task's longest run's length."""
+    if auc_iterations is not None and auc_iterations < 1:
+        raise ValueError(f"--auc-range {auc_iterations}: the AUC is the mean over iterations 0 … R − 1; "
+                         "allowed: R ≥ 1")
     longest: dict[str, int] = {}
     for (task, _), runs in groups.items():
         longest[task] = max([longest.get(task, 0), *(int(r.rows[-1]["iteration"]) + 1 for r in runs)])
     budgets = {id(r): budget_of(r, budget) or longest[task] for (task, _), runs in groups.items() for r in runs}
+    firsts = {id(r): first_score(r, budgets[id(r)]) for runs in groups.values() for r in runs}
     ranges: dict[str, int] = {}
-    for (task, _), runs in groups.items():
-        ranges[task] = max([ranges.get(task, 0), *(budgets[id(r)] for r in runs)])
+    for task in longest:
+        members = [r for (t, _), runs in groups.items() if t == task for r in runs]
+        ranges[task] = auc_iterations or auc_range(members, [budgets[id(r)] for r in members],
+                                                   [firsts[id(r)][1] for r in members])
     out = {}
     for (task, label), runs in groups.items():
-        firsts = [first_score(r, budgets[id(r)]) for r in runs]
         out[task, label] = Scores(
-            first=np.array([f for f, _ in firsts], dtype=float),
-            censored=np.array([c for _, c in firsts], dtype=bool),
+            first=np.array([firsts[id(r)][0] for r in runs], dtype=float),
+            censored=np.array([firsts[id(r)][1] for r in runs], dtype=bool),
             auc=np.array([auc(r, ranges[task]) for r in runs]),
             budgets=[budgets[id(r)] for r in runs],
             auc_range=ranges[task],
@@ -317,23 +350,26 @@ def scores(groups: dict[tuple[str, str], list[Run]], budget: int | None = None) 
 
 
 def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, budget: int | None = None,
-            rng: np.random.Generator | None = None) -> list[str]:
+            rng: np.random.Generator | None = None, auc_iterations: int | None = None) -> list[str]:
     """Per task holding both groups, one line: P(a run of ``first`` beats a run of ``second``) on first ≥ 0.9
-    (strictly fewer iterations; censored pairs as in :func:`gchgg.stats.probability_of_improvement`) and
-    on the AUC (larger), each with its 95 % interval and the runs it rests on."""
+    (strictly fewer iterations; a censored run read as its censoring iteration, a bound, and its pairs as
+    in :func:`gchgg.stats.probability_of_improvement`: :attr:`Scores.first_bound`) and
+    on the AUC (larger; over the range :func:`auc_range` gives the two groups' runs, or ``auc_iterations``),
+    each with its 95 % interval and the runs it rests on."""
     labels = {label for _, label in groups}
     for name in (first, second):
         if name not in labels:
             raise ValueError(f"--compare {first} {second}: no group {name!r}; the groups are {', '.join(sorted(labels))}")
-    table_scores = scores(groups, budget)
     lines = []
     for task in sorted({task for task, _ in groups}):
         if (task, first) not in groups or (task, second) not in groups:
             missing = first if (task, first) not in groups else second
             lines.append(f"{task}: no runs of {missing}")
             continue
-        a, b = table_scores[task, first], table_scores[task, second]
-        poi_first = stats.poi_interval(a.first, b.first, lower_is_better=True, x_censored=a.censored,
+        pair = {key: groups[key] for key in ((task, first), (task, second))}
+        pair_scores = scores(pair, budget, auc_iterations)
+        a, b = pair_scores[task, first], pair_scores[task, second]
+        poi_first = stats.poi_interval(a.first_bound, b.first_bound, lower_is_better=True, x_censored=a.censored,
                                        y_censored=b.censored, rng=rng)
         poi_auc = stats.poi_interval(a.auc, b.auc, rng=rng)
         lines.append(f"{task}: P({first} beats {second}) first >= {THRESHOLD}: {poi_first.format()}"
@@ -357,16 +393,18 @@ def _as_list(column: str | Sequence[str]) -> list[str]:
 
 
 def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100, 150),
-          column: str | Sequence[str] = "success_rate", budget: int | None = None) -> str:
+          column: str | Sequence[str] = "success_rate", budget: int | None = None,
+          auc_iterations: int | None = None) -> str:
     """A Markdown table per group: runs, iterations to success ≥ 0.5 / ≥ 0.9, each of ``column`` at ``at``
-    and at the end, the IQM [95 % CI] of first ≥ 0.9 (censored runs counted at their censoring
-    iteration, and how many were), the IQM [95 % CI] of the AUC, ... (the thresholds and scores are on
+    and at the end, the IQM [95 % CI] of first ≥ 0.9 (censored runs counted one past their censoring
+    iteration, and how many were), the IQM [95 % CI] of the AUC and its range (``0-R−1``, R common to
+    a task's groups: :func:`auc_range`, or ``auc_iterations``), ... (the thresholds and scores are on
     ``success_rate`` whatever ``column`` is; ``budget`` overrides the runs' budgets, :func:`budget_of`).
 
     A run shorter than an ``at`` iteration (one stopped early, or ``at 300`` for a run of iterations
     0–299) counts with its last value, as the curves hold it."""
     columns = _as_list(column)
-    group_scores = scores(groups, budget)
+    group_scores = scores(groups, budget, auc_iterations)
     head = ["task", "group", "runs", "first ≥ 0.5", "first ≥ 0.9"]
     for name in columns:
         head += [*(f"{name} at {i}" for i in at), f"final {name}"]
@@ -385,7 +423,8 @@ def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100
                 cells.append(_fmt(iqr(values[:, min(i, values.shape[1] - 1)]), 2))
             cells.append(_fmt(iqr([r.column(name)[-1] for r in runs]), 2))
         score = group_scores[task, label]
-        cells += [score.first_interval().format(1), str(int(score.censored.sum())), score.auc_interval().format(3)]
+        cells += [score.first_interval().format(1), str(int(score.censored.sum())),
+                  f"{score.auc_interval().format(3)} over 0-{score.auc_range - 1}"]
         cells.append(_fmt(iqr([r.rows[-1]["iteration"] for r in runs])))
         generated = [r for r in runs if "d_g" in r.rows[-1]]  # runs with a goal generator
         stops = [first_at(r, 1.0, "stopped") for r in generated]
@@ -450,11 +489,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--budget", type=int, metavar="N",
                         help="every run's budget in iterations (censoring of first >= 0.9, the AUC's range); "
                              "default: its config's train.iterations, else conf/experiment/fig5_<task>.yaml's")
+    parser.add_argument("--auc-range", type=int, metavar="R",
+                        help="the AUC is the mean success over iterations 0 ... R-1; default: the smallest budget of "
+                             "the compared runs, or their shortest censored run's length if shorter")
     parser.add_argument("--compare", nargs=2, metavar=("A", "B"),
                         help="print P(a run of group A beats one of group B) per task, on both scores, instead of the table")
     args = parser.parse_args(argv)
     if args.budget is not None and args.budget < 1:
         parser.error(f"--budget {args.budget}: a budget is a number of iterations, allowed: 1 or more")
+    if args.auc_range is not None and args.auc_range < 1:
+        parser.error(f"--auc-range {args.auc_range}: the AUC is the mean over iterations 0 ... R-1; allowed: R >= 1")
     runs = find_runs(args.paths)
     logged = {key for run in runs for row in run.rows for key in row}
     unknown = [name for name in args.y if name not in logged]
@@ -464,10 +508,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     groups = group_runs(runs)
     if args.compare:
         try:
-            print("\n".join(compare(groups, *args.compare, budget=args.budget)))
+            print("\n".join(compare(groups, *args.compare, budget=args.budget, auc_iterations=args.auc_range)))
         except ValueError as error:
             parser.error(str(error))
-    text = table(groups, args.at, args.y, args.budget) if args.table or not args.compare else ""
+    text = table(groups, args.at, args.y, args.budget, args.auc_range) if args.table or not args.compare else ""
     if not args.compare:
         print(text, end="")
     if args.table:

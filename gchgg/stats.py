@@ -17,13 +17,13 @@ seaborn and pandas for what is a few lines of array code, so it is not a depende
   U statistic over n · m), averaged over tasks. Its CI bootstraps the runs of X and of Y
   independently (rliable's ``StratifiedIndependentBootstrap``).
 
-One addition for right-censored scores (a run that never reached a threshold, counted at the
-iteration where it was last seen): a pair's order counts only where the data show it. X's run beats
-Y's if X's is observed (not censored) and strictly better than Y's recorded value (Y's true value
-is at least as bad as recorded); a pair where neither is shown better (two censored runs, or an
-observed run no better than a censored one's recorded value) counts as a tie. Without censored
-scores this is exactly the Mann-Whitney fraction above; with every censored run at the same budget
-too (they tie among themselves and lose to every observed run).
+One addition for right-censored scores (a run that never reached a threshold, recorded at the
+iteration it was censored at: its true score is that or worse): a pair's order counts only where the
+data show it. X's run beats Y's if X's is observed (not censored) and strictly better than Y's
+recorded value (Y's true value is at least as bad as recorded); a pair where neither is shown
+better (two censored runs, or an observed run no better than a censored one's recorded value)
+counts as a tie. Without censored scores this is exactly the Mann-Whitney fraction above; with every
+censored run at the same budget too (they tie among themselves and lose to every observed run).
 
 >>> iqm([1.0, 2.0, 3.0, 4.0, 100.0, 5.0, 6.0, 7.0])  # 2 cut from each end of 8: mean of 3, 4, 5, 6
 4.5

@@ -92,6 +92,19 @@ def test_the_command_writes_the_table_and_its_verdict_lines(results, capsys):
     assert "- **contradicted** (5 of 15): toy: Slow by 5; Fast fails; Slow beats Fast; 0.5; 0.9\n" in text
 
 
+def test_only_the_task_folders_seed_files_are_read_every_seed_of_them(results):
+    toy = results / "toy"
+    write_csv(toy / "fast-seed3.csv", reaching(6))  # a fourth seed: read
+    write_csv(toy / "unfinished" / "fast-seed4.csv", reaching(19))  # unfinished/: not read
+    write_csv(toy / "invalid" / "fast-seed5.csv", [0.0] * 20)  # invalid/: not read
+    write_csv(toy / "fast-diagnostic.csv", [0.0] * 20)  # not <group>-seed<N>.csv: not read
+    assert [p.name for p in claims.seed_files(toy) if p.name.startswith("fast")] == [
+        "fast-seed0.csv", "fast-seed1.csv", "fast-seed2.csv", "fast-seed3.csv"]
+    scores, _ = claims.measure(results, "toy")
+    assert scores["fast"].first.tolist() == [3, 4, 5, 6] and "fast-diagnostic" not in scores
+    assert claims.measure(results, "missing_task") == ({}, {})
+
+
 def test_a_claim_of_an_unknown_kind_or_without_its_figure_is_an_error(tmp_path):
     path = tmp_path / "claims.yaml"
     path.write_text("claims:\n  - {id: x, task: t, kind: sooner, groups: [a], claim: c, paper: p}\n")

@@ -146,19 +146,21 @@ def test_budgets_come_from_the_config_else_the_tasks_fig5_experiment_else_the_ov
         plot.budget_of(push, override=0)
 
 
-def test_first_at_0_9_is_censored_at_the_budget_or_at_the_runs_own_end(tmp_path):
+def test_first_at_0_9_is_censored_at_the_budget_or_at_the_runs_own_end_and_counted_one_past_it(tmp_path):
     def run(success):
         write_csv(tmp_path / "r.csv", success)
         return plot.load_run(tmp_path / "r.csv")
 
     # reached at iteration 2 (0-based, as plot.first_at counts): observed
     assert plot.first_score(run([0.0, 0.5, 0.9, 1.0]), budget=10) == (2, False)
-    # ran its whole budget of 4 iterations (0-3) without 0.9: censored at 4, the first iteration past the budget
-    assert plot.first_score(run([0.0, 0.5, 0.8, 0.8]), budget=4) == (4, True)
-    # stayed at 0.00 and ended after 3 of its 10 iterations: censored at its own end, 3, not at 10
-    assert plot.first_score(run([0.0, 0.0, 0.0]), budget=10) == (3, True)
-    # reached 0.9 only at its budget's end or after it: censored at the budget
-    assert plot.first_score(run([0.0, 0.0, 0.9]), budget=2) == (2, True)
+    # ran its whole budget of 4 iterations (0-3) without 0.9: censored at 4, counted at budget + 1 = 5
+    assert plot.first_score(run([0.0, 0.5, 0.8, 0.8]), budget=4) == (5, True)
+    # stayed at 0.00 and ended after 3 of its 10 iterations: censored at its own end, 3, counted at 4, not at 11
+    assert plot.first_score(run([0.0, 0.0, 0.0]), budget=10) == (4, True)
+    # reached 0.9 only at its budget's end or after it: censored at the budget, counted one past it
+    assert plot.first_score(run([0.0, 0.0, 0.9]), budget=2) == (3, True)
+    # stopped early by the stop rule after holding 0.9: observed, not censored
+    assert plot.first_score(run([0.0, 0.95, 0.95]), budget=10) == (1, False)
 
 
 def test_auc_is_the_mean_success_over_the_common_range_each_run_held_at_its_last_value(tmp_path):
@@ -175,16 +177,19 @@ def test_the_table_gives_iqm_intervals_of_both_scores_and_the_censored_count(tmp
     plot.main([str(tmp_path / "toy"), "--at", "1"])
     head, _, row = capsys.readouterr().out.splitlines()[:3]
     cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|"))))
-    # task toy has no Fig. 5 experiment: the budget is its longest run, 4 iterations; the third run is censored at 4
-    first = (1 + 2 + 4) / 3  # 3 runs: the IQM is their mean
+    # task toy has no Fig. 5 experiment: the budget is its longest run, 4 iterations; the third run is
+    # censored at 4 and counted at 5
+    first = (1 + 2 + 5) / 3  # 3 runs: the IQM is their mean
     assert cells["first ≥ 0.9 IQM [95 % CI]"].startswith(f"{first:.1f} [")
     assert cells["censored"] == "1"
     auc = ((0 + 0.9 + 1 + 1) + (0 + 0 + 0.9 + 1) + (0 + 0 + 0 + 0.5)) / 12
-    assert cells["AUC IQM [95 % CI]"].startswith(f"{auc:.3f} [")
+    assert cells["AUC IQM [95 % CI]"].startswith(f"{auc:.3f} [") and cells["AUC IQM [95 % CI]"].endswith(" over 0-3")
     plot.main([str(tmp_path / "toy"), "--at", "1", "--budget", "2"])  # first >= 0.9 must come before iteration 2
     head, _, row = capsys.readouterr().out.splitlines()[:3]
     cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|"))))
-    assert cells["first ≥ 0.9 IQM [95 % CI]"] == f"{(1 + 2 + 2) / 3:.1f} [1.0, 2.0]" and cells["censored"] == "2"
+    # the second run's 0.9 at iteration 2 is past the budget: both it and the third are censored at 2, counted at 3
+    assert cells["first ≥ 0.9 IQM [95 % CI]"] == f"{(1 + 3 + 3) / 3:.1f} [1.0, 3.0]" and cells["censored"] == "2"
+    assert cells["AUC IQM [95 % CI]"].endswith(" over 0-1")  # R: the budget, 2
 
 
 def test_compare_prints_the_probability_that_a_run_of_one_group_beats_one_of_the_other(tmp_path, capsys):
@@ -211,7 +216,7 @@ def test_compare_counts_ties_half_and_leaves_the_order_of_censored_runs_open(tmp
         write_csv(tmp_path / "toy" / f"{name}.csv", rates)
     plot.main([str(tmp_path / "toy"), "--compare", "a", "b"])
     line = capsys.readouterr().out.strip()
-    # pairs (1, 1) tie, (1, 2) won, (4 censored, 1) lost, (4 censored, 2) lost: (0.5 + 1) / 4
+    # pairs (1, 1) tie, (1, 2) won, (5 censored, 1) lost, (5 censored, 2) lost: (0.5 + 1) / 4
     assert line.startswith("toy: P(a beats b) first >= 0.9: 0.38 [")
     # AUCs over 0-3: a 0.75, 0.00; b 0.75, 0.50: (0.75, 0.75) tie, (0.75, 0.5) won, 0.00 lost twice: 1.5 / 4
     assert "; AUC over iterations 0-3: 0.38 [" in line
@@ -224,3 +229,59 @@ def test_the_readme_quotes_what_compare_prints_on_the_committed_push_new_runs(ca
     plot.main([str(repo / "docs/results/push_new"), "--compare", "gchgg", "ghgg"])
     (line,) = capsys.readouterr().out.splitlines()
     assert f"    {line}\n" in (repo / "README.md").read_text()
+
+
+def reference_auc(success, iterations):
+    """Mean success over iterations 0 .. iterations - 1, the list extended with its last value."""
+    held = list(success) + [success[-1]] * max(0, iterations - len(success))
+    return sum(held[:iterations]) / iterations
+
+
+def test_the_auc_range_is_the_smallest_budget_or_the_shortest_censored_run_and_can_be_set(tmp_path, capsys):
+    toy = tmp_path / "toy"  # no Fig. 5 experiment: every run's budget is the longest run's length, 8
+    a = [[0.0, 0.5, 0.9, 1.0, 1.0, 1.0, 1.0, 1.0], [0.0, 0.0, 0.95, 0.95]]  # the second stopped early: held at 0.95
+    b = [[0.0, 0.2, 0.4, 0.6, 0.8, 0.8, 0.8, 0.8], [0.0, 0.1, 0.9, 0.9, 0.9, 0.9, 0.9, 0.9]]
+    short = [[0.0, 0.0, 0.0, 0.0, 0.0, 0.0]]  # never reached 0.9, abandoned after 6 of 8 iterations: censored at 6
+    for name, runs in {"a": a, "b": b, "short": short}.items():
+        for seed, rates in enumerate(runs):
+            write_csv(toy / f"{name}-seed{seed}.csv", rates)
+    groups = plot.group_runs(plot.find_runs([toy]))
+    every = plot.scores(groups)
+    assert {s.auc_range for s in every.values()} == {6}  # capped by the censored run's length, 6 < 8
+    assert every["toy", "a"].auc.tolist() == pytest.approx([reference_auc(r, 6) for r in a])
+    assert every["toy", "short"].first.tolist() == [7] and every["toy", "short"].censored_at == [6]
+    pair = plot.scores({k: v for k, v in groups.items() if k[1] in ("a", "b")})
+    assert pair["toy", "b"].auc_range == 8  # no censored run among a and b: the budget
+    assert pair["toy", "b"].auc.tolist() == pytest.approx([reference_auc(r, 8) for r in b])
+    three = plot.scores(groups, auc_iterations=3)["toy", "a"]
+    assert three.auc.tolist() == pytest.approx([reference_auc(r, 3) for r in a])
+    plot.main([str(toy), "--compare", "a", "b"])  # --compare: the range of the two groups compared
+    assert capsys.readouterr().out.strip().endswith("AUC over iterations 0-7: 1.00 [1.00, 1.00]")
+    plot.main([str(toy), "--compare", "a", "short"])
+    assert "AUC over iterations 0-5: " in capsys.readouterr().out
+    plot.main([str(toy), "--compare", "a", "b", "--auc-range", "2"])
+    line = capsys.readouterr().out.strip()
+    # AUC over 0-1: a 0.25, 0.00; b 0.10, 0.05: (0.25 > 0.10, 0.25 > 0.05, 0 < 0.10, 0 < 0.05): 2 / 4
+    assert line.endswith("AUC over iterations 0-1: 0.50 [0.00, 1.00]")
+    with pytest.raises(SystemExit):
+        plot.main([str(toy), "--compare", "a", "b", "--auc-range", "0"])
+    assert "--auc-range 0: the AUC is the mean over iterations 0 ... R-1; allowed: R >= 1" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="--auc-range 0"):
+        plot.scores(groups, auc_iterations=0)
+
+
+def test_a_run_reaching_0_9_where_a_shorter_one_was_censored_does_not_beat_it(tmp_path, capsys):
+    """Censored at 3 (it ran iterations 0-2), its true first >= 0.9 is 3 or later: 0.9 at 3 may tie it,
+    at 2 beats it."""
+    write_csv(tmp_path / "toy" / "late-seed0.csv", [0.0, 0.0, 0.0, 0.9, 0.9])  # observed at 3
+    write_csv(tmp_path / "toy" / "early-seed0.csv", [0.0, 0.0, 0.9, 0.9, 0.9])  # observed at 2
+    write_csv(tmp_path / "toy" / "short-seed0.csv", [0.0, 0.0, 0.0])  # censored at 3, counted at 4
+    groups = plot.group_runs(plot.find_runs([tmp_path / "toy"]))
+    short = plot.scores(groups)["toy", "short"]
+    assert short.first.tolist() == [4] and short.first_bound.tolist() == [3]
+    def poi(a, b):
+        return plot.compare(groups, a, b)[0].split("; AUC")[0]
+
+    assert poi("late", "short") == "toy: P(late beats short) first >= 0.9: 0.50 [0.50, 0.50] (1 vs 1 runs)"
+    assert poi("early", "short") == "toy: P(early beats short) first >= 0.9: 1.00 [1.00, 1.00] (1 vs 1 runs)"
+    assert poi("short", "late") == "toy: P(short beats late) first >= 0.9: 0.50 [0.50, 0.50] (1 vs 1 runs)"
