@@ -25,7 +25,7 @@ def sweep_seconds(launcher: list[str], folder: Path, args) -> float:
     command = [
         sys.executable, "-m", "gchgg.train", "-m", "+experiment=fig5_reach",
         f"algo={','.join(args.algos)}", f"seed={','.join(map(str, args.seeds))}",
-        f"train.iterations={args.iterations}", "logging.progress=false", "logging.tensorboard=false",
+        f"train.iterations={args.iterations}", "logging.progress=false", "logging.backend=csv",
         f"hydra.sweep.dir={folder}", *launcher,
     ]  # fmt: skip
     start = time.perf_counter()

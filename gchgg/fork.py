@@ -21,18 +21,26 @@ seed starts them, unless the seed is the source's: then they continue. So a fork
 nothing (but its length, logging and the like) continues exactly as ``resume=true`` would, and the
 two forks of a pair (same checkpoint, same new seed) draw the same targets at the fork point.
 
-**May differ**: :data:`MAY_DIFFER`. The metric (``algo.metric``, ``graph.*``) and HGG's parameters
-(``env.stop_threshold``, ``hgg.c``, ``hgg.L``) may, because no carried state depends on them: the
-pool holds raw achieved-goal trajectories, HGG's ``max_dis`` is recomputed with the fork's metric,
-and the stop flag is carried as it is (a stop that fired stays fired). Every other setting shapes the
-carried state or the loop that wrote the source's rows (task, networks, buffer, HER, episodes,
-updates, goal generator, pool size, evaluation episodes) and must be the source's; a fork that
-changes one is refused, naming it with both values.
+**May differ**: :data:`MAY_DIFFER`. How the products are computed (``threads``, ``matmul``,
+``precision``) may: the carried parameters are float32 whatever the products' dtype. The metric
+(``algo.metric``, ``graph.*``) and HGG's parameters (``env.stop_threshold``, ``hgg.c``, ``hgg.L``)
+may, because no carried state depends on them: the pool holds raw achieved-goal trajectories, HGG's
+``max_dis`` is recomputed with the fork's metric, and the stop flag is carried as it is (a stop
+that fired stays fired). Every other setting shapes the carried state or the loop that wrote the
+source's rows (task, networks, buffer, HER, episodes, updates, goal generator, pool size, evaluation
+episodes) and must be the source's; a fork that changes one is refused, naming it with both values.
+A setting the source's ``config.yaml`` lacks (added to the code after the source ran) counts as
+changed; outside :data:`MAY_DIFFER` it is refused too, with a hint: ``~<setting>`` drops it from the
+fork's config where its absence reads as the source's behaviour.
 
 The fork writes its first checkpoint (iteration i) and ``fork.yaml`` (source, source iteration, the
 changed settings source → fork, what was renewed) into its own folder before it trains: from then
 on it is a run of its own, resumed with ``resume=true`` from its own checkpoint (``init_from`` is
-not read again) and independent of the source's folder.
+not read again) and independent of the source's folder. A ``resume=true`` that names an
+``init_from`` other than the one the folder's ``fork.yaml`` records (or a folder holding no fork) is
+refused (:func:`check_resume`): the folder holds another run. A fork's folder name in a Hydra sweep
+leaves ``init_from`` out (``hydra.job.config.override_dirname.exclude_keys``: a path would nest
+folders), so a sweep of forks names its source in ``hydra.sweep.dir``.
 """
 
 from __future__ import annotations
@@ -49,14 +57,14 @@ from omegaconf import DictConfig, OmegaConf
 
 from gchgg import checkpoint
 
-__all__ = ["MAY_DIFFER", "Fork", "changed_settings", "prepare", "start"]
+__all__ = ["MAY_DIFFER", "Fork", "changed_settings", "check_resume", "prepare", "start"]
 
 log = logging.getLogger(__name__)
 
 RECORD = "fork.yaml"
 SOURCE_CONFIG = "config.yaml"
 MAY_DIFFER = (
-    "seed", "resume", "init_from", "threads", "matmul",
+    "seed", "resume", "init_from", "threads", "matmul", "precision",
     "algo.name", "algo.sampler", "algo.metric", "graph.*", "curriculum.*", "tradeoff.*", "cher.*",
     "env.stop_threshold", "hgg.c", "hgg.L",
     "train.iterations", "train.stop_success", "train.stop_patience",
@@ -163,6 +171,8 @@ def prepare(cfg: DictConfig, run_dir: Path, checkpoint_name: str) -> Fork:
         details = "; ".join(
             f"{key}: {old!r} in the source, {new!r} here"
             + next((f" ({why})" for prefix, why in WHY.items() if key.startswith(prefix)), "")
+            + (f" (a setting added since the source ran: ~{key} drops it here if its absence reads as the "
+               "source's behaviour)" if old == _ABSENT else "")
             for key, (old, new) in refused.items()
         )
         raise ValueError(
@@ -185,6 +195,24 @@ def prepare(cfg: DictConfig, run_dir: Path, checkpoint_name: str) -> Fork:
             f"checkpoint of {source}), got train.iterations={cfg.train.iterations}"
         )
     return fork
+
+
+def check_resume(cfg: DictConfig, run_dir: Path) -> None:
+    """Refuse to resume ``run_dir`` with ``init_from`` set unless it holds a fork of that source.
+
+    Raises:
+        ValueError: the folder's ``fork.yaml`` records another source, or there is none (the folder
+            holds a run that is not a fork).
+    """
+    source = Path(str(cfg.init_from)).expanduser().resolve()
+    record = Path(run_dir) / RECORD
+    recorded = OmegaConf.load(record).get("source") if record.is_file() else None
+    if recorded is None or Path(recorded) != source:
+        holds = f"a fork of {recorded}" if recorded else "a run that is not a fork"
+        raise ValueError(
+            f"init_from={source}: run folder {run_dir} already holds {holds}; resume it with that init_from "
+            f"(or init_from=null), or fork into another folder (hydra.run.dir / hydra.sweep.dir)"
+        )
 
 
 def start(fork: Fork, trainer) -> dict[str, Any]:

@@ -38,13 +38,14 @@ import hydra  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
+from hydra.types import RunMode  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torchrl.envs import TransformedEnv  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg import checkpoint, fork  # noqa: E402
+from gchgg import checkpoint, fork, loggers  # noqa: E402
 from gchgg.agent import DDPGAgent, DDPGConfig  # noqa: E402
 from gchgg.builders import (  # noqa: E402
     check_positive,
@@ -109,6 +110,7 @@ def check_config(cfg: DictConfig) -> None:
     check_choice("agent.normalizer_source", cfg.agent.normalizer_source, NORMALIZER_SOURCES)
     check_choice("matmul", cfg.matmul, MATMUL_BACKENDS)
     check_choice("precision", cfg.get("precision", "float32"), PRECISIONS)
+    loggers.check_backends(cfg.logging.backend)  # a known name, its package installed
     if cfg.train.stop_success is not None:
         check_number("train.stop_success (a success rate, or null)", cfg.train.stop_success, low=0, high=1)
     if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
@@ -165,7 +167,7 @@ class Trainer:
         self.evaluator: BackgroundEvaluator | None = None  # started by train() with eval.background
         self.eval_pending: dict[int, dict] = {}  # iteration -> policy snapshot, submitted, not yet back
         self.eval_state: dict | None = None  # the eval env's state before the pending evaluations
-        self._logged = 0  # history rows already sent to TensorBoard
+        self._logged = 0  # history rows already sent to the trackers (logging.backend)
         if cfg.noise.object_std:
             self.achieved_key = "true_achieved_goal"  # ObservationNoise keeps the clean achieved goal there
 
@@ -468,15 +470,15 @@ class Trainer:
         self.eval_pending[iteration] = self.agent.policy_state() if policy is None else policy
         self.evaluator.submit(iteration, self.eval_pending[iteration], start)
 
-    def log_rows(self, logger) -> None:
-        """TensorBoard scalars of the rows complete since the last call (a row waits for its evaluation)."""
+    def log_rows(self, trackers: loggers.RunLoggers | None) -> None:
+        """The rows complete since the last call (a row waits for its evaluation) to the trackers, each
+        row whole at step = its iteration."""
         while self._logged < len(self.history):
             row = self.history[self._logged]
             if row["iteration"] in self.eval_pending:
                 break
-            if logger is not None:
-                for key, value in row.items():
-                    logger.add_scalar(key, value, row["iteration"])
+            if trackers is not None:
+                trackers.log_row(row, step=row["iteration"])
             self._logged += 1
 
     def collect_evaluations(self, wait: bool = False) -> None:
@@ -511,9 +513,7 @@ class Trainer:
     def train(self) -> list[dict[str, float]]:
         """Runs the remaining iterations, checkpointing after each; returns the metrics history."""
         cfg = self.cfg
-        logger = _tensorboard(self.run_dir) if cfg.logging.tensorboard else None
-        if logger is not None:
-            logger.add_text("startup", "```\n" + startup_record(cfg) + "\n```", self.iteration)
+        trackers = open_loggers(cfg, self.run_dir)  # logging.backend; hyperparameters logged once
         bar = tqdm(
             total=cfg.train.iterations,
             initial=self.iteration,
@@ -544,7 +544,7 @@ class Trainer:
                     saved_at = self.iteration
                 row["seconds_checkpoint"] = time.perf_counter() - tick  # in the CSV; in the next checkpoint
                 self.write_metrics()
-                self.log_rows(logger)
+                self.log_rows(trackers)
                 postfix = {"success": f"{row.get('success_rate', math.nan):.2f}", "train": f"{row['train_success_rate']:.2f}"}
                 postfix.update({key: f"{row[key]:.3g}" for key in ("lambda", "d_g") if key in row})
                 bar.set_postfix(postfix)
@@ -553,19 +553,18 @@ class Trainer:
             if saved_at != self.iteration:  # the stop fired on an evaluation that came back after the checkpoint
                 self.save()
             self.write_metrics()
-            self.log_rows(logger)
+            self.log_rows(trackers)
         finally:
             if self.evaluator is not None:
                 self.evaluator.close()
                 self.evaluator = None
+            trackers.close()
         bar.close()
         if self.reached_stop():
             print(
                 f"stopped early after iteration {self.iteration - 1}: success rate >= {cfg.train.stop_success} "
                 f"for {cfg.train.stop_patience} iterations (train.stop_success)"
             )
-        if logger is not None:
-            logger.close()
         return self.history
 
 
@@ -640,13 +639,32 @@ class _IterationStats:
         return row
 
 
-def _tensorboard(run_dir: Path):
-    """A TensorBoard ``SummaryWriter`` when tensorboard is installed, else ``None``."""
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:
-        return None
-    return SummaryWriter(str(run_dir / "tensorboard"))
+def tracker_names(cfg: DictConfig, run_dir: Path) -> tuple[str, str, Path]:
+    """The run's name and group in W&B and MLflow, and the folder of a local MLflow store. A job of a
+    Hydra sweep (``-m``): its ``override_dirname`` in the group named after the sweep's folder, whose
+    store its jobs share; else ``<env>/<algo>/seed<seed>`` in group ``<env>/<algo>``, store in ``run_dir``."""
+    name, group, store = f"{cfg.env.name}/{cfg.algo.name}/seed{cfg.seed}", f"{cfg.env.name}/{cfg.algo.name}", run_dir
+    if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+        hydra_cfg = HydraConfig.get()
+        sweep = Path(hydra_cfg.sweep.dir).resolve()
+        name, group, store = hydra_cfg.job.override_dirname or name, sweep.name, sweep
+    return name, group, store
+
+
+def open_loggers(cfg: DictConfig, run_dir: Path) -> loggers.RunLoggers:
+    """The trackers ``logging.backend`` names (:mod:`gchgg.loggers`), with the resolved settings, the
+    package versions and the git commit as hyperparameters."""
+    name, group, store = tracker_names(cfg, run_dir)
+    hparams = {
+        **OmegaConf.to_container(cfg, resolve=True),
+        "versions": versions(),
+        "matmul_resolved": resolve_matmul(cfg.matmul),
+    }
+    settings = cfg.logging
+    return loggers.make_loggers(
+        settings.backend, run_dir, name, group, hparams,
+        project=settings.get("project", "gchgg"), mlflow_uri=settings.get("mlflow_uri"), store_dir=store,
+    )  # fmt: skip
 
 
 def versions() -> dict[str, str]:
@@ -705,6 +723,8 @@ def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
     if cfg.get("init_from") is not None and not path.exists():
         check_config(cfg)
         source = fork.prepare(cfg, run_dir, CHECKPOINT)  # refuses incompatible settings before anything is built
+    elif cfg.get("init_from") is not None:
+        fork.check_resume(cfg, run_dir)  # the folder holds a fork of this source, not another run
     for folder in (run_dir, run_dir / REPLAY):  # what a save killed before its rename left behind
         checkpoint.remove_temporaries(folder)
     trainer = Trainer(cfg, run_dir)

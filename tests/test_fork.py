@@ -2,8 +2,9 @@
 
 A fork that changes nothing but its length continues exactly as ``resume=true`` would; a G-HGG →
 GC-HGG fork with a fresh seed logs the settings it changes and starts at the source's iteration; a
-setting that shapes the carried state is refused by name; a fork resumes from its own checkpoint,
-without the source's folder.
+setting that shapes the carried state is refused by name (one the source's config predates, with a
+hint); a fork resumes from its own checkpoint, without the source's folder, and only as a fork of
+the source it records.
 """
 
 from __future__ import annotations
@@ -169,3 +170,27 @@ def test_a_fork_resumes_from_its_own_checkpoint_without_its_source(graphs, sourc
     train.run(config([*base, "train.iterations=5", "resume=true"]), forked)
     assert f"resumed {forked} after iteration 4" in capsys.readouterr().out
     assert metrics(forked) == metrics(curriculum_fork)
+
+
+def test_a_resume_names_the_forks_own_source_or_none(graphs, sources, curriculum_fork):
+    base = overrides(graphs, "gchgg", "seed=7", "train.iterations=5", "resume=true")
+    with pytest.raises(ValueError, match=f"already holds a fork of {sources['ghgg']}; resume it with that init_from"):
+        train.run(config([*base, f"init_from={sources['gchgg']}"]), curriculum_fork)
+    with pytest.raises(ValueError, match="already holds a run that is not a fork"):
+        train.run(config([*base, f"init_from={sources['ghgg']}"]), sources["gchgg"])  # a sweep's folders collided
+
+
+def test_a_setting_added_since_the_source_ran_is_named_with_a_hint(graphs, sources, tmp_path):
+    source = tmp_path / "older"
+    shutil.copytree(sources["ghgg"], source)
+    saved = OmegaConf.load(source / "config.yaml")
+    for key in ("precision", "init_from"):  # added to the config after runs were made with it
+        saved.pop(key)
+    OmegaConf.save(saved, source / "config.yaml")
+    cfg = config(overrides(graphs, "ghgg", "seed=7", "train.iterations=5", f"init_from={source}"))
+    assert fork.prepare(cfg, tmp_path / "fork", train.CHECKPOINT).changes["precision"] == ("<absent>", "float32")
+
+    saved.her.pop("strategy")
+    OmegaConf.save(saved, source / "config.yaml")
+    with pytest.raises(ValueError, match=r"her.strategy: '<absent>' in the source, 'future' here .*~her.strategy"):
+        fork.prepare(cfg, tmp_path / "fork", train.CHECKPOINT)

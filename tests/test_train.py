@@ -52,7 +52,7 @@ def tiny(tmp_path: Path, iterations: int = 1) -> list[str]:
         f"graph.cache_dir={tmp_path / 'graphs'}",
         "agent.hidden=[16,16]",
         "logging.progress=false",
-        "logging.tensorboard=false",
+        "logging.backend=csv",
     ]
 
 
