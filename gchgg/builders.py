@@ -131,6 +131,7 @@ def make_sampler(
             diversity_metric=diversity_metric,
             scale=scale,
             energy_key="energy",
+            on_write="redraw",  # every batch from the buffer as it is when sampled (the recorded runs)
         )
     check_positive("cher_pool_size", cher_pool_size, integer=True)
     return CherSampler(metric, pool_size=cher_pool_size, tradeoff=tradeoff)

@@ -341,7 +341,8 @@ def test_kuka_tasks_satisfy_the_criterion_at_default_settings():
         ({"margin": -0.01}, "margin must be >= 0"),
         ({"margin": math.nan}, "margin must be a finite number"),
         ({"field": ((0, 0, 0), (0.4, 0.4, 0.0))}, "field half-sizes must be > 0"),
-        ({"field": ((0, 0), (0.4, 0.4))}, "field must be a box"),
+        ({"field": ((0, 0, 0, 0), (0.4, 0.4, 0.4, 0.4))}, "field must be a box"),  # 2-D fields are allowed
+        ({"field": ((0, 0), (0.4, 0.4))}, r"n must be two integers \(n_x, n_y\), for the 2-D field"),
         ({"field": 3.0}, "field must be a box"),
         ({"obstacles": [((0, 0, 0), (-0.1, 0.2, 0.2))]}, r"obstacles\[0\] half-sizes must be >= 0"),
         ({"snap": "round"}, "snap must be 'nearest' or 'floor'"),

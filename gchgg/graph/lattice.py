@@ -1,8 +1,9 @@
 """The obstacle-aware lattice graph :class:`GoalGraph` and its distance table d_G (Sec. III-C, IV-B, eqs. 8–14).
 
-A :class:`GoalGraph` lays an orthorhombic lattice over a box-shaped goal-space field (eqs. 9–10),
-removes the vertices inside every obstacle inflated by a safety margin ε (Sec. IV-B), joins each
-remaining vertex to its 26 neighbours with edges weighted by their length (eq. 11) and holds all
+A :class:`GoalGraph` lays an orthorhombic lattice over a box-shaped goal-space field (eqs. 9–10; a
+3-D box, or a 2-D rectangle for a planar goal space), removes the vertices inside every obstacle
+inflated by a safety margin ε (Sec. IV-B), joins each remaining vertex to its 26 neighbours (8 in
+2-D) with edges weighted by their length (eq. 11) and holds all
 pairwise shortest-path distances in a compact table. :meth:`GoalGraph.distance` maps goals to
 vertices (eq. 14) and reads the table (eq. 13) with vectorised torch ops; it is ``inf`` where a goal
 lies outside the field or on a removed vertex. :class:`EuclideanMetric` offers the same
@@ -100,9 +101,11 @@ class _CorruptCache(Exception):
 class GoalGraph:
     """Obstacle-aware lattice graph over a box-shaped goal space, with all-pairs graph distances.
 
-    The lattice has ``n[k]`` vertices along axis ``k``, spaced ``2·field.half[k] / (n[k] − 1)`` and
-    spanning the field's faces (eqs. 9–10). Vertices inside an obstacle inflated by ``margin`` are
-    removed; the others are joined to their (up to) 26 neighbours by edges weighted by their
+    The field is 3-D (``(x, y, z)`` goals) or 2-D (``(x, y)`` goals of a planar task: a 2-D lattice,
+    8-connected; its obstacles are rectangles). The lattice has ``n[k]`` vertices along axis ``k``,
+    spaced ``2·field.half[k] / (n[k] − 1)`` and spanning the field's faces (eqs. 9–10). Vertices
+    inside an obstacle inflated by ``margin`` are removed; the others are joined to their (up to) 26
+    (2-D: 8) neighbours by edges weighted by their
     Euclidean length (eq. 11). Shortest-path distances between every pair of free vertices come
     from Dijkstra and are kept in a 2-byte-per-pair table (see the module docstring), cached on
     disk. ``distance(a, b)`` is eq. 13: the table entry of the vertices of ``a`` and ``b`` (eq. 14),
@@ -111,9 +114,10 @@ class GoalGraph:
 
     Args:
         field: the goal-space box ``(center, half)``, each ``(x, y, z)`` in metres, e.g.
-            ``envs.geometry("push_new").field``; every half-size must be positive.
-        obstacles: obstacle boxes ``(center, half)`` in metres, un-inflated.
-        n: vertices per axis ``(n_x, n_y, n_z)``, each an integer ≥ 2.
+            ``envs.geometry("push_new").field``, or ``(x, y)`` for a planar goal space; every
+            half-size must be positive.
+        obstacles: obstacle boxes ``(center, half)`` in metres, un-inflated, of the field's dimension.
+        n: vertices per axis ``(n_x, n_y, n_z)`` (``(n_x, n_y)`` for a 2-D field), each an integer ≥ 2.
         margin: safety margin ε in metres (≥ 0) added to every obstacle half-size (Sec. IV-B).
 
     Keyword Args:
@@ -195,7 +199,7 @@ class GoalGraph:
         self._scale_w = torch.from_numpy(1.0 / reach)
         self._shift_w = torch.from_numpy(-center / reach)
         self._floor_shift = torch.from_numpy(tolerance)  # floor(u + tolerance): planes are "at or below"
-        self._strides = torch.tensor([self.n[1] * self.n[2], self.n[2], 1], dtype=torch.float64)
+        self._strides = torch.tensor([math.prod(self.n[k + 1 :]) for k in range(len(self.n))], dtype=torch.float64)
         slots = self.num_vertices + 1
         rows = torch.arange(slots, dtype=torch.int64)
         # The upper triangle row by row: entry (r, c), r <= c, lives at _row_offset[r] + c.
@@ -230,8 +234,8 @@ class GoalGraph:
         """Graph distance d_G between goals (eq. 13).
 
         Args:
-            a: goals ``[..., 3]`` in metres (CPU).
-            b: goals ``[..., 3]``, broadcastable against ``a``.
+            a: goals ``[..., d]`` in metres (CPU), d = 3 (or 2 for a 2-D field).
+            b: goals ``[..., d]``, broadcastable against ``a``.
 
         Returns:
             float32 ``[...]``: shortest-path length between the goals' vertices (eq. 14), ``inf`` where
@@ -246,7 +250,7 @@ class GoalGraph:
         read distances with :meth:`distance_between_vertices`.
 
         Args:
-            goals: ``[..., 3]`` in metres.
+            goals: ``[..., d]`` in metres (d: the field's dimension).
 
         Returns:
             int64 ``[...]`` in ``[-1, num_vertices)``: ``-1`` outside the field or on a removed vertex.
@@ -308,26 +312,27 @@ class GoalGraph:
         """Vertex positions along one shortest path from the vertex of goal ``a`` to that of goal ``b``.
 
         Args:
-            a: one goal ``[3]`` in metres.
-            b: one goal ``[3]``.
+            a: one goal ``[d]`` in metres (d: the field's dimension).
+            b: one goal ``[d]``.
 
         Returns:
-            float32 ``[L, 3]``, starting at a's vertex and ending at b's (``L = 1`` when they share a
-            vertex); ``[0, 3]`` when either goal is outside the graph or no path joins them.
+            float32 ``[L, d]``, starting at a's vertex and ending at b's (``L = 1`` when they share a
+            vertex); ``[0, d]`` when either goal is outside the graph or no path joins them.
         """
         a, b = torch.as_tensor(a), torch.as_tensor(b)
-        if a.shape != (3,) or b.shape != (3,):
+        d = len(self.n)
+        if a.shape != (d,) or b.shape != (d,):
             raise ValueError(
-                f"shortest_path takes two goals of shape [3], got {tuple(a.shape)} and {tuple(b.shape)}"
+                f"shortest_path takes two goals of shape [{d}], got {tuple(a.shape)} and {tuple(b.shape)}"
             )
         source, target = (int(s) - 1 for s in (self._slots(a), self._slots(b)))
         if source < 0 or target < 0:
-            return torch.empty(0, 3)
+            return torch.empty(0, d)
         _, predecessors = dijkstra(
             self.adjacency, directed=True, indices=source, return_predecessors=True
         )
         if source != target and predecessors[target] < 0:
-            return torch.empty(0, 3)
+            return torch.empty(0, d)
         path = [target]
         while path[-1] != source:  # walk back along the predecessor tree (at most V steps)
             path.append(int(predecessors[path[-1]]))
@@ -335,19 +340,19 @@ class GoalGraph:
 
     @property
     def vertices(self) -> torch.Tensor:
-        """Positions ``[num_vertices, 3]`` (float32, metres) of the free vertices, in lattice C order."""
+        """Positions ``[num_vertices, d]`` (float32, metres) of the free vertices, in lattice C order."""
         return self._vertices
 
     @property
     def free_mask(self) -> torch.Tensor:
-        """Bool ``[n_x, n_y, n_z]``: which lattice vertices were kept."""
+        """Bool ``[n_x, n_y, n_z]`` (``[n_x, n_y]`` in 2-D): which lattice vertices were kept."""
         return torch.from_numpy(self._free.copy())
 
     @property
-    def lattice_axes(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Lattice coordinates along x, y and z (float64, metres), eq. 10."""
+    def lattice_axes(self) -> tuple[torch.Tensor, ...]:
+        """Lattice coordinates along x, y and z (x and y in 2-D) (float64, metres), eq. 10."""
         return tuple(
-            torch.from_numpy(self.low[k] + self.spacing[k] * np.arange(self.n[k])) for k in range(3)
+            torch.from_numpy(self.low[k] + self.spacing[k] * np.arange(self.n[k])) for k in range(len(self.n))
         )
 
     @property
@@ -380,8 +385,10 @@ class GoalGraph:
     def _slots(self, goals: torch.Tensor) -> torch.Tensor:
         """Slot of each goal's vertex (eq. 14): free vertex v is slot v + 1, 0 is "not in the graph"."""
         g = torch.as_tensor(goals)
-        if g.shape[-1:] != (3,):
-            raise ValueError(f"goals must have shape [..., 3], got {tuple(g.shape)}")
+        if g.shape[-1:] != (len(self.n),):
+            raise ValueError(
+                f"goals must have shape [..., {len(self.n)}] (the graph's field is {len(self.n)}-D), got {tuple(g.shape)}"
+            )
         if g.dtype not in (torch.float32, torch.float64):
             g = g.to(torch.float32)
         if g.dtype == torch.float32 and self._strides[0] * self.n[0] >= 2**24:
@@ -410,21 +417,26 @@ class GoalGraph:
     # ------------------------------------------------------------------ construction
 
     def _free_vertices(self) -> np.ndarray:
-        axes = [self.low[k] + self.spacing[k] * np.arange(self.n[k]) for k in range(3)]
+        d = len(self.n)
+        axes = [self.low[k] + self.spacing[k] * np.arange(self.n[k]) for k in range(d)]
         free = np.ones(self.n, dtype=bool)
         tol = 1e-9  # metres: a vertex on an inflated obstacle's surface is removed despite float noise
         for low, high in self.inflated_obstacles:
-            inside = [(axes[k] >= low[k] - tol) & (axes[k] <= high[k] + tol) for k in range(3)]
-            free &= ~(inside[0][:, None, None] & inside[1][None, :, None] & inside[2][None, None, :])
+            inside = [(axes[k] >= low[k] - tol) & (axes[k] <= high[k] + tol) for k in range(d)]
+            box = inside[0].reshape([-1] + [1] * (d - 1))
+            for k in range(1, d):  # the box's vertices: the outer product of its axes' memberships
+                box = box & inside[k].reshape([1] * k + [-1] + [1] * (d - 1 - k))
+            free &= ~box
         return free
 
     def _edges(self) -> csr_matrix:
-        """26-connected edges between free vertices weighted by length (eq. 11), both directions."""
+        """26-connected (2-D: 8-connected) edges between free vertices weighted by length (eq. 11), both directions."""
         compact = np.full(self.n, -1, dtype=np.int64)
         compact[self._free] = np.arange(self.num_vertices)
         rows, cols, weights = [], [], []
-        for step in itertools.product((-1, 0, 1), repeat=3):
-            if step <= (0, 0, 0):  # each undirected edge once: the 13 "forward" neighbours
+        d = len(self.n)
+        for step in itertools.product((-1, 0, 1), repeat=d):
+            if step <= (0,) * d:  # each undirected edge once: the 13 (2-D: 4) "forward" neighbours
                 continue
             source = tuple(slice(max(0, -d), k - max(0, d)) for d, k in zip(step, self.n))
             target = tuple(slice(max(0, d), k - max(0, -d)) for d, k in zip(step, self.n))
@@ -597,7 +609,7 @@ def _inflate(field_low, field_high, spacing, obstacles, margin):
             )
             continue
         edge = high - low
-        bad = [k for k in range(3) if not spacing[k] < edge[k]]
+        bad = [k for k in range(len(spacing)) if not spacing[k] < edge[k]]
         if bad:
             fixes = "; ".join(
                 f"along {_AXES[k]} it spans {edge[k]:.6g} m inside the field but the spacing is "
@@ -618,24 +630,25 @@ def _inflate(field_low, field_high, spacing, obstacles, margin):
 def _settings(field, obstacles, n, margin):
     """Validated ``(center, half, n, margin, obstacles)`` of a graph."""
     center, half = _box("field", field)
+    dim = len(center)
     if not (half > 0).all():
         raise ValueError(
             f"field half-sizes must be > 0 on every axis (a field of zero size has no lattice), "
             f"got half={tuple(half.tolist())}"
         )
-    n = _lattice_size(n)
+    n = _lattice_size(n, dim)
     if isinstance(margin, bool) or not isinstance(margin, numbers.Real) or not math.isfinite(margin):
         raise ValueError(f"margin must be a finite number of metres >= 0, got {margin!r}")
     if margin < 0:
         raise ValueError(f"margin must be >= 0 metres (it inflates every obstacle), got {margin!r}")
     obstacles = tuple(
-        tuple(tuple(v.tolist()) for v in _box(f"obstacles[{i}]", box)) for i, box in enumerate(obstacles)
+        tuple(tuple(v.tolist()) for v in _box(f"obstacles[{i}]", box, dim)) for i, box in enumerate(obstacles)
     )
     return center, half, n, float(margin), obstacles
 
 
-def _box(name: str, box: Any) -> tuple[np.ndarray, np.ndarray]:
-    """``(center, half)`` as two finite float64 arrays of shape [3]."""
+def _box(name: str, box: Any, dim: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(center, half)`` as two finite float64 arrays of shape [d]: d = 3 or 2 (``dim`` when given)."""
     try:
         center, half = box
         center = np.asarray(center, dtype=np.float64)
@@ -644,29 +657,30 @@ def _box(name: str, box: Any) -> tuple[np.ndarray, np.ndarray]:
         center = half = None
     if (
         center is None
-        or center.shape != (3,)
-        or half.shape != (3,)
+        or center.shape not in ((3,), (2,))
+        or half.shape != center.shape
+        or (dim is not None and center.shape != (dim,))
         or not (np.isfinite(center).all() and np.isfinite(half).all())
     ):
-        raise ValueError(
-            f"{name} must be a box (center, half) of two finite (x, y, z) triples in metres, "
-            f"got {box!r}"
-        )
+        allowed = {None: "two finite (x, y, z) triples (3-D) or (x, y) pairs (2-D)", 3: "two finite (x, y, z) triples, like the 3-D field",
+                   2: "two finite (x, y) pairs, like the 2-D field"}[dim]
+        raise ValueError(f"{name} must be a box (center, half) of {allowed} in metres, got {box!r}")
     if (half < 0).any():
         raise ValueError(f"{name} half-sizes must be >= 0, got half={tuple(half.tolist())}")
     return center, half
 
 
-def _lattice_size(n: Any) -> tuple[int, int, int]:
+def _lattice_size(n: Any, dim: int = 3) -> tuple[int, ...]:
     try:
         values = list(n)
     except TypeError:
         values = None
-    if values is None or len(values) != 3 or not all(
+    if values is None or len(values) != dim or not all(
         isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 2 for v in values
     ):
+        names = "(n_x, n_y, n_z)" if dim == 3 else "(n_x, n_y), for the 2-D field"
         raise ValueError(
-            f"n must be three integers (n_x, n_y, n_z), each >= 2 (vertices per axis), got {n!r}"
+            f"n must be {'three' if dim == 3 else 'two'} integers {names}, each >= 2 (vertices per axis), got {n!r}"
         )
     return tuple(int(v) for v in values)
 

@@ -14,10 +14,10 @@ class Lattice(Protocol):
     """The vertex view of a graph metric: what consumers that score many goals read instead of
     calling ``distance`` pair by pair (the curriculum's nearest-neighbour search, HGG's costs)."""
 
-    field: tuple[tuple[float, float, float], tuple[float, float, float]]  # (centre, half-sizes), metres
+    field: tuple[tuple[float, ...], tuple[float, ...]]  # (centre, half-sizes), d values each, metres
 
     @property
-    def vertices(self) -> torch.Tensor: ...  # float32 [V, 3] vertex positions
+    def vertices(self) -> torch.Tensor: ...  # float32 [V, d] vertex positions
 
     @property
     def resolution(self) -> float: ...  # metres: distances are rounded to this (0: exact)
@@ -31,9 +31,24 @@ class Lattice(Protocol):
 
 @runtime_checkable
 class Metric(Protocol):
-    """A goal metric: ``distance(a, b)`` on goals ``[..., 3]``, broadcasting, to float32 ``[...]``, and
-    its ``lattice`` (a :class:`Lattice` for a graph metric, ``None`` for one that works on goals
-    directly). Consumers read ``lattice`` rather than asking which metric they hold."""
+    """A goal metric: ``distance(a, b)`` and its ``lattice``. Consumers read ``lattice`` rather than
+    asking which metric they hold.
+
+    * ``distance(a, b)``: goals ``a`` ``[..., d]`` and ``b`` ``[..., d]`` (any goal dimension d ≥ 1,
+      the same for both; their batch shapes broadcast) → one distance per pair, shape the broadcast
+      batch shape ``[...]``, ≥ 0, ``inf`` for "unreachable", never NaN. Return float32; the samplers
+      cast any other float dtype (float64 from numpy code, say) to float32 and refuse a result of
+      another shape, naming the shape expected.
+    * ``lattice``: a :class:`Lattice` for a graph metric (its straight lines between vertices must
+      never be longer than its distances), ``None`` for one that works on goals directly.
+
+    A user metric is a two-member class::
+
+        class Manhattan:
+            lattice = None
+            def distance(self, a, b):
+                return (a - b).abs().sum(-1).float()
+    """
 
     def distance(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor: ...
 
@@ -56,13 +71,18 @@ class EuclideanMetric:
         """Euclidean distance between goals.
 
         Args:
-            a: goals ``[..., 3]``.
-            b: goals ``[..., 3]``, broadcastable against ``a``.
+            a: goals ``[..., d]``, any dimension d ≥ 1.
+            b: goals ``[..., d]``, broadcastable against ``a``.
 
         Returns:
             float32 ``[...]``: ‖a − b‖ (finite for finite goals; there is no field here).
         """
         a, b = torch.as_tensor(a), torch.as_tensor(b)
+        if a.ndim < 1 or b.ndim < 1 or a.shape[-1] != b.shape[-1] or a.shape[-1] < 1:
+            raise ValueError(
+                f"EuclideanMetric.distance needs goals a [..., d] and b [..., d] with the same d >= 1, "
+                f"got shapes {tuple(a.shape)} and {tuple(b.shape)}"
+            )
         return torch.linalg.vector_norm(a - b, dim=-1).to(torch.float32)
 
     def __repr__(self) -> str:

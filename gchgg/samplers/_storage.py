@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import json
 from pathlib import Path
 from typing import Any
@@ -96,6 +97,17 @@ class WrittenRows:
         if full:
             return None
         return torch.cat(fresh) if fresh else torch.empty(0, dtype=torch.long)
+
+
+def init_signature(cls):
+    """Class decorator: ``help(cls)`` and ``inspect.signature(cls)`` show ``__init__``'s parameters.
+
+    TorchRL's samplers have a metaclass whose ``__call__(cls, *args, **kwargs)`` would otherwise be
+    what they show.
+    """
+    signature = inspect.signature(cls.__init__)
+    cls.__signature__ = signature.replace(parameters=list(signature.parameters.values())[1:])
+    return cls
 
 
 def _missing(data: Any, key: NestedKey, sampler: object):

@@ -13,13 +13,15 @@ from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
 from gchgg.graph import EuclideanMetric, Metric
-from gchgg.samplers._storage import check_sampleable, dump_state, generator, load_state, read_field
+from gchgg.samplers._storage import check_sampleable, dump_state, generator, init_signature, load_state, read_field
+from gchgg.samplers.nearest import check_distances
 from gchgg.samplers.tradeoff import ExponentialTradeoff, Tradeoff, as_tradeoff
 from gchgg.validation import check_number
 
 __all__ = ["CherSampler", "lazier_than_lazy_greedy", "nearest_other"]
 
 
+@init_signature
 class CherSampler(Sampler):
     """Curriculum-guided HER (Fang et al. 2019) selection, the baseline of the paper's Table I.
 
@@ -44,8 +46,14 @@ class CherSampler(Sampler):
     k = 1 the gains are the same either way). An unreachable goal (``inf``) counts as the largest
     finite distance of the pool, as in :class:`~gchgg.samplers.GraphCurriculumSampler`.
 
+    ``info`` (copied into every sampled row by a ``TensorDictReplayBuffer``): ``diversity``, the
+    facility-location value Σ_v cover(v) of the chosen batch over the pool (each pool entry's best
+    similarity to a chosen entry, so it grows with B and at most ``pool_size``: higher = the batch
+    covers more of the pool's goals); ``proximity``, −Σ d(g, g*) over the chosen batch; ``tradeoff``, λ.
+
     Args:
-        metric: proximity metric with ``distance(a, b)``. Default :class:`~gchgg.graph.EuclideanMetric`.
+        metric: proximity metric (a :class:`~gchgg.graph.Metric` on goals ``[..., d]``, any d ≥ 1; its
+            distances are cast to float32). Default :class:`~gchgg.graph.EuclideanMetric`.
         pool_size: candidates per sample, ≥ B + subset_size − 1. Default 5,000 (GC-HGG's CHER runs
             drew one candidate per stored episode of a 5,000-episode buffer; CHER's own code drew
             128 for a batch of 64).
@@ -109,12 +117,10 @@ class CherSampler(Sampler):
             )
         rng = generator(self)
         pool = torch.randint(n, (self.pool_size,), generator=rng)
-        goals = read_field(storage, self.goal_key, pool, self).reshape(self.pool_size, -1)
-        targets = read_field(storage, self.target_key, pool, self).reshape(self.pool_size, -1)
+        goals = self._goals(self.goal_key, read_field(storage, self.goal_key, pool, self))
+        targets = self._goals(self.target_key, read_field(storage, self.target_key, pool, self), goals.shape[1])
 
-        distance = torch.as_tensor(self.metric.distance(goals, targets))
-        if bool(torch.isnan(distance).any()):
-            raise ValueError("the metric returned NaN distances; goals must be finite")
+        distance = check_distances(self.metric.distance(goals, targets), "metric", (self.pool_size,))
         finite = torch.isfinite(distance)
         if not bool(finite.all()):
             distance = torch.where(finite, distance, distance[finite].max() if bool(finite.any()) else 0.0)
@@ -130,6 +136,16 @@ class CherSampler(Sampler):
             "tradeoff": torch.tensor(lam, dtype=torch.float32),
         }
         return pool[chosen], info
+
+    def _goals(self, key: NestedKey, goals: torch.Tensor, dim: int | None = None) -> torch.Tensor:
+        """Pool goals ``[P, d]`` read under ``key``, checked (d ≥ 1; ``dim`` when given, the goals' d)."""
+        if goals.ndim != 2 or goals.shape[1] < 1 or (dim is not None and goals.shape[1] != dim):
+            allowed = f"[{dim}] like {self.goal_key!r}" if dim is not None else "[d] with d >= 1 (a 1-D goal is stored as [1])"
+            raise ValueError(
+                f"CherSampler reads goals {key!r} from the storage as one vector per transition, {allowed}; "
+                f"got {tuple(goals.shape[1:])} per transition"
+            )
+        return goals
 
     def similarity_graph(self, goals: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Each pool goal's k nearest other pool goals and their similarity exp(−d²/mean(d)²).

@@ -8,7 +8,7 @@ from __future__ import annotations
 import base64
 import math
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import torch
@@ -17,18 +17,16 @@ from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
 from gchgg.graph import Metric
-from gchgg.samplers._storage import WrittenRows, check_sampleable, dump_state, generator, load_state, read_field
+from gchgg.samplers._storage import WrittenRows, check_sampleable, dump_state, generator, init_signature, load_state, read_field
 from gchgg.samplers.energy import EnergySampler
-from gchgg.samplers.nearest import POINT_SIZE, NearestNeighbours, check_distances
+from gchgg.samplers.nearest import NearestNeighbours, check_distances, point_size
 from gchgg.samplers.tradeoff import Tradeoff, as_tradeoff
 from gchgg.validation import check_choice, check_number
 
-__all__ = ["SCALES", "GraphCurriculumSampler", "curriculum_objective"]
+__all__ = ["ON_WRITE", "SCALES", "GraphCurriculumSampler", "curriculum_objective"]
 
 SCALES = ("raw", "standardized")
-
-_TO_TARGET = POINT_SIZE  # column of the goal-to-target distance in the per-row cache (after the point)
-_GOAL = _TO_TARGET + 1  # first of the diversity goal's 3 columns, cached for a diversity metric without a lattice
+ON_WRITE = ("keep", "redraw")  # what a write does to the candidates drawn ahead, see "Drawing ahead"
 
 
 @dataclass
@@ -42,8 +40,10 @@ class _Pool:
     stored: int  # len(storage) when drawn
     rng_state: torch.Tensor  # the generator's state before the draw: the pool can be drawn again from it
     next: int = 0
+    written: list = field(default_factory=list)  # rows written since the draw (on_write="keep")
 
 
+@init_signature
 class GraphCurriculumSampler(Sampler):
     """Curriculum-guided sampling (Algorithm 1 of GC-HGG) as a TorchRL ``Sampler``.
 
@@ -103,22 +103,32 @@ class GraphCurriculumSampler(Sampler):
 
     Drawing ahead. The candidates of the next ``draw_ahead`` samples are drawn and scored in one
     go (F_div and F_prox do not depend on λ), and each ``sample`` picks its best candidate with the
-    λ of that moment; any write to the buffer (``extend``/``add``/``mark_update``) drops the
-    candidates drawn before it, so every batch comes from the buffer as it is when sampled. This
-    spreads the fixed cost of the many small tensor operations of a draw over the samples; the
-    draws are the same i.i.d. draws, and the same generator seed gives the same indices (without
-    ``energy_key``, the candidates of the next ``draw_ahead`` samples are exactly
-    ``torch.randint(len(storage), (draw_ahead, K, B), generator=buffer_generator)``). The
-    sampler's ``state_dict`` (and so TorchRL's ``dumps``) keeps the generator state the current
-    candidates were drawn from and how many of them were used, so a restored buffer draws them
-    again and continues with the same batches.
+    λ of that moment. This spreads the fixed cost of the many small tensor operations of a draw
+    over the samples; the draws are the same i.i.d. draws, and the same generator seed gives the
+    same indices (without ``energy_key``, the candidates of the next ``draw_ahead`` samples are
+    exactly ``torch.randint(len(storage), (draw_ahead, K, B), generator=buffer_generator)``).
+    A write to the buffer (``extend``/``add``/``mark_update``) between samples does, with
+    ``on_write="keep"`` (the default), not throw every candidate away: at each sample, the
+    candidates of that sample that hold a row written since they were drawn are drawn and scored
+    afresh from the buffer as it is now; the others are used as drawn. So a loop that writes before
+    every sample pays for the few candidates its writes touched, not a whole ``draw_ahead`` pool;
+    the price is that a kept candidate comes from the buffer as it was at the draw (rows new to
+    the storage, or energies changed elsewhere, count from the next draw on, at most
+    ``draw_ahead − 1`` samples later).
+    ``on_write="redraw"`` (what gchgg's training uses) drops the candidates drawn before any write,
+    so every batch is drawn from the buffer as it is when sampled. The sampler's ``state_dict``
+    (and so TorchRL's ``dumps``) keeps the generator state the current candidates were drawn from
+    and how many of them were used, so a restored buffer draws them again and continues with the
+    same batches (with ``"keep"``, only while no write has happened since the draw; otherwise the
+    restored sampler draws afresh).
 
     Per-row cache. Each stored row's shortlist point (the goal's lattice vertex relative to the
     field's centre, its squared norm and its vertex index; see :meth:`NearestNeighbours.points`) and
     its goal-to-target distance are computed once, at the first ``sample`` after the row is written
     (rows the buffer reports through ``extend``/``add``/``mark_update``, and rows new to the
-    storage), and kept in a float32 ``[n, 7]`` tensor (28 bytes per stored row; ``[n, 10]`` with
-    the goal itself for a diversity metric without a lattice, which reads goals; EBP candidates add
+    storage), and kept in a float32 ``[n, d + 4]`` tensor for d-D goals (28 bytes per stored row
+    for 3-D goals; ``[n, 2·d + 4]`` with the goal itself for a diversity metric without a lattice,
+    which reads goals; EBP candidates add
     the energies' float64 copy, 8 bytes per row, see :class:`EnergySampler`); ``sample`` then
     reads neither goals nor targets from the storage and snaps no goal. Rows overwritten behind
     the sampler's back (TorchRL's ``buffer[index] = ...``, or another buffer writing into a full
@@ -131,9 +141,15 @@ class GraphCurriculumSampler(Sampler):
     of the goals are unproven and the shortlist always equals the all-pairs value; the time is
     printed there as a ratio to uniform sampling.
 
+    Goals. Stored goals are ``[d]`` per transition, any dimension d ≥ 1 (a 2-D maze, 3-D positions,
+    a joint configuration); ``goal_key`` and ``target_key`` must have the same d, and a metric with a
+    lattice (:class:`~gchgg.graph.GoalGraph`) the d of its field. The first sample checks them and
+    names the key and shape that do not fit.
+
     Args:
-        metric: object with ``distance(a, b)`` on goals ``[..., 3]`` → ``[...]`` (``GoalGraph`` for
-            GC-HGG, ``EuclideanMetric`` for the Euclidean ablation), used for F_prox (and F_div
+        metric: a :class:`~gchgg.graph.Metric`: ``distance(a, b)`` on goals ``[..., d]`` →
+            ``[...]`` (any float dtype; cast to float32) and ``lattice`` (``GoalGraph`` for GC-HGG,
+            ``EuclideanMetric`` for the Euclidean ablation, or your own), used for F_prox (and F_div
             unless ``diversity_metric`` is given).
         num_candidates: K ≥ 1 candidate batches per sample. Default 8.
         tradeoff: λ ≥ 0 as a number or a schedule (:class:`~gchgg.samplers.AdaptiveTradeoff` for
@@ -157,6 +173,8 @@ class GraphCurriculumSampler(Sampler):
             described above.
         draw_ahead: samples whose candidates are drawn and scored together (≥ 1; see "Drawing
             ahead"). Default 8.
+        on_write: ``"keep"`` (default) or ``"redraw"``: what a buffer write does to the candidates
+            drawn ahead (see "Drawing ahead").
 
     Example:
         >>> import torch
@@ -195,6 +213,7 @@ class GraphCurriculumSampler(Sampler):
         neighbours: int | str | None = "auto",
         unreachable_distance: float | None = None,
         draw_ahead: int = 8,
+        on_write: str = "keep",
     ) -> None:
         for name, m in (("metric", metric), ("diversity_metric", diversity_metric)):
             if m is not None and not isinstance(m, Metric):
@@ -204,6 +223,7 @@ class GraphCurriculumSampler(Sampler):
             check_number("unreachable_distance (or None)", unreachable_distance, low=0)
         check_choice("scale", scale, SCALES)
         check_number("draw_ahead (samples scored together)", draw_ahead, integer=True, low=1)
+        check_choice("on_write", on_write, ON_WRITE)
         self.metric = metric
         self.diversity_metric = metric if diversity_metric is None else diversity_metric
         self.num_candidates = num_candidates
@@ -215,9 +235,12 @@ class GraphCurriculumSampler(Sampler):
         self.energy_key = energy_key
         self.unreachable_distance = unreachable_distance
         self.draw_ahead = draw_ahead
+        self.on_write = on_write
         self._energy = EnergySampler(energy_key) if energy_key is not None else None
         self._nearest = NearestNeighbours(self.diversity_metric, neighbours)
-        self._width = _GOAL + (0 if self._nearest.snaps else 3)  # per-row cache columns
+        # Per-row cache columns for d-D goals: the point (d + 3), the goal-to-target distance, and the
+        # diversity goal (d) for a metric without a lattice; set at the first sample, when d is known.
+        self._width = self._to_target = 0
         # Per stored row: the goal's shortlist point and goal-to-target distance, valid as _written says.
         self._rows: torch.Tensor | None = None
         self._written = WrittenRows()
@@ -226,8 +249,9 @@ class GraphCurriculumSampler(Sampler):
 
     @property
     def cache_bytes(self) -> int:
-        """Bytes of the per-row caches, sized to the storage's capacity at the first sample: 28 per row (40
-        for a diversity metric without a lattice), and 8 more with EBP candidates (their energies)."""
+        """Bytes of the per-row caches, sized to the storage's capacity at the first sample: 4·(d + 4) per row
+        for d-D goals (28 for 3-D; 4·(2·d + 4) for a diversity metric without a lattice), and 8 more with
+        EBP candidates (their energies)."""
         rows = 0 if self._rows is None else self._rows.numel() * self._rows.element_size()
         return rows + (0 if self._energy is None else self._energy.cache_bytes)
 
@@ -255,10 +279,14 @@ class GraphCurriculumSampler(Sampler):
         if (
             pool is None
             or pool.next == len(pool.index)
-            or (pool.batch_size, pool.stored, pool.index.shape[1]) != (batch_size, n, self.num_candidates)
+            or (pool.batch_size, pool.index.shape[1]) != (batch_size, self.num_candidates)
+            or pool.stored > n
+            or (pool.stored < n and not pool.written)  # the storage changed without a write we were told of
         ):
             pool = self._pool = self._score(storage, n, batch_size)
         ahead, pool.next = pool.next, pool.next + 1
+        if pool.written:  # on_write="keep": rescore this sample's candidates if a row of theirs was rewritten
+            self._rescore_written(storage, pool, ahead, n)
         lam = float(self.tradeoff.value)  # read now: λ may change between samples of one pool
         diversity, proximity = pool.diversity[ahead], pool.proximity[ahead]
         div_term, prox_term = curriculum_objective(diversity, proximity, lam, self.scale)
@@ -278,18 +306,45 @@ class GraphCurriculumSampler(Sampler):
         generator, or ``rng`` to draw a saved pool again)."""
         rng = generator(self) if rng is None else rng
         rng_state = rng.get_state()
-        a, k = self.draw_ahead, self.num_candidates
+        index = self._draw(storage, n, (self.draw_ahead, self.num_candidates, b), rng)
+        diversity, proximity = self._objectives(storage, index, n)
+        return _Pool(index, diversity, proximity, b, n, rng_state)
+
+    def _draw(self, storage: Storage, n: int, shape: tuple[int, ...], rng: torch.Generator) -> torch.Tensor:
+        """Candidate row indices of ``shape`` (``[A, K, B]``): EBP with ``energy_key``, else uniform."""
         if self._energy is not None:
             self._energy._rng = rng
-            index = self._energy.draw(storage, a * k, b).view(a, k, b)
-        else:
-            index = torch.randint(n, (a, k, b), generator=rng)
-        rows = self._stored_rows(storage, index, n)  # [A, K, B, 7 (+3)]: shortlist point, goal-to-target distance (goal)
-        goals = None if self._nearest.snaps else rows[..., _GOAL:].reshape(a * k, b, 3)
-        nearest = self._nearest.from_points(rows[..., :_TO_TARGET].reshape(a * k, b, _TO_TARGET), goals)
-        diversity = nearest.nan_to_num(posinf=0.0).sum(-1).view(a, k)  # eq. 19: no finite neighbour adds nothing
-        proximity = -self._finite(rows[..., _TO_TARGET]).sum(-1)  # eq. 15 with C = 0, [A, K]
-        return _Pool(index, diversity, proximity, b, n, rng_state)
+            return self._energy.draw(storage, *shape)
+        return torch.randint(n, shape, generator=rng)
+
+    def _objectives(
+        self, storage: Storage, index: torch.Tensor, n: int, only: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """F_div and F_prox ``[A, K]`` of the candidate batches ``index`` ``[A, K, B]`` (F_div only of the
+        candidates ``only`` selects, a bool ``[A, K]``, when given: ``[M]``)."""
+        rows = self._stored_rows(storage, index, n)  # [A, K, B, d + 4 (+ d)]: shortlist point, goal-to-target distance (goal)
+        proximity = -self._finite(rows[..., self._to_target]).sum(-1)  # eq. 15 with C = 0, [A, K]
+        scored = rows if only is None else rows[only]
+        return self._diversity(scored.view(-1, *rows.shape[2:])).view(scored.shape[:-2]), proximity
+
+    def _diversity(self, rows: torch.Tensor) -> torch.Tensor:
+        """F_div ``[C]`` of C candidate batches from their cached rows ``[C, B, width]``."""
+        c, b, _ = rows.shape
+        to_target = self._to_target
+        goals = None if self._nearest.snaps else rows[..., to_target + 1 :]
+        nearest = self._nearest.from_points(rows[..., :to_target], goals)
+        return nearest.nan_to_num(posinf=0.0).sum(-1)  # eq. 19: no finite neighbour adds nothing
+
+    def _rescore_written(self, storage: Storage, pool: _Pool, ahead: int, n: int) -> None:
+        """Sample ``ahead``'s candidates that hold a row written since the pool was drawn are drawn and
+        scored afresh (from the buffer as it is now); the others are kept as scored."""
+        index = pool.index[ahead]  # [K, B]
+        touched = torch.isin(index, torch.cat(pool.written)).any(-1)  # [K]
+        if not bool(touched.any()):
+            return
+        index[touched] = self._draw(storage, n, (int(touched.sum()), pool.batch_size), generator(self))
+        diversity, proximity = self._objectives(storage, index.unsqueeze(0), n, touched.unsqueeze(0))
+        pool.diversity[ahead, touched], pool.proximity[ahead] = diversity, proximity[0]
 
     def _restore_pool(self, storage: Storage, n: int, b: int) -> _Pool | None:
         """The pool a loaded state was in the middle of, drawn again from its saved generator state
@@ -315,7 +370,7 @@ class GraphCurriculumSampler(Sampler):
         return torch.where(finite, distance, fill)
 
     def _stored_rows(self, storage: Storage, index: torch.Tensor, n: int) -> torch.Tensor:
-        """Cached ``[..., 7]`` of rows ``index``: the goal's shortlist point (see
+        """Cached ``[..., d + 4]`` of rows ``index``: the goal's shortlist point (see
         :meth:`NearestNeighbours.points`) and its goal-to-target distance, computed once per written row."""
         if not self._written.current(n):
             self._refresh(storage, n)
@@ -324,24 +379,52 @@ class GraphCurriculumSampler(Sampler):
     def _refresh(self, storage: Storage, n: int) -> None:
         """Compute the cache entries of rows written since the last sample (and of rows new to the storage)."""
         fresh = self._written.take(n, 0 if self._rows is None else len(self._rows))
-        if fresh is None:  # everything: size the cache to the storage's capacity
-            self._rows = torch.empty(max(n, int(getattr(storage, "max_size", n) or n)), self._width)
+        rebuild = fresh is None
+        if rebuild:  # everything: the cache is sized to the storage's capacity below
             fresh = torch.arange(n)
         if not len(fresh):
             return
-        cache = self._rows
-        goals = read_field(storage, self.goal_key, fresh, self)
-        targets = read_field(storage, self.target_key, fresh, self)
-        diverse = goals if self.diversity_key == self.goal_key else read_field(storage, self.diversity_key, fresh, self)
-        cache[fresh, :_TO_TARGET] = self._nearest.points(diverse)
-        cache[fresh, _TO_TARGET] = check_distances(self.metric.distance(goals, targets), "metric")
+        goals = self._goals(storage, self.goal_key, fresh, _lattice_dim(self.metric), "the metric's lattice")
+        targets = self._goals(storage, self.target_key, fresh, goals.shape[-1], repr(self.goal_key))
+        if self.diversity_key == self.goal_key and self._nearest.dim in (None, goals.shape[-1]):
+            diverse = goals
+        else:
+            diverse = self._goals(storage, self.diversity_key, fresh, self._nearest.dim, "the diversity metric's lattice")
+        points = self._nearest.points(diverse)  # checks the diversity goals' d against the diversity metric
+        distance = check_distances(self.metric.distance(goals, targets), "metric", (len(fresh),))
+        if rebuild:
+            self._to_target = points.shape[-1]
+            self._width = self._to_target + 1 + (0 if self._nearest.snaps else diverse.shape[-1])
+            self._rows = torch.empty(max(n, int(getattr(storage, "max_size", n) or n)), self._width)
+        cache, to_target = self._rows, self._to_target
+        cache[fresh, :to_target] = points
+        cache[fresh, to_target] = distance
         if not self._nearest.snaps:  # the goals themselves: the metric reads them
-            cache[fresh, _GOAL:] = diverse.to(cache.dtype)
+            cache[fresh, to_target + 1 :] = diverse.to(cache.dtype)
+
+    def _goals(self, storage: Storage, key: NestedKey, rows: torch.Tensor, dim: int | None = None, like: str = ""):
+        """Stored goals ``[len(rows), d]`` under ``key``, checked: one vector of d ≥ 1 values per row
+        (``dim`` of them, as ``like`` has, when given)."""
+        goals = read_field(storage, key, rows, self)
+        if goals.ndim != 2 or goals.shape[1] < 1 or (dim is not None and goals.shape[1] != dim):
+            allowed = f"[{dim}] like {like}" if dim is not None else "[d] with d >= 1 (a 1-D goal is stored as [1])"
+            raise ValueError(
+                f"{type(self).__name__} reads goals {key!r} from the storage as one vector per transition, "
+                f"{allowed}; got {tuple(goals.shape[1:])} per transition"
+            )
+        return goals
 
     def _forget(self, index) -> None:
         """Mark (re)written rows: their cache entries are recomputed at the next sample, and candidates
-        drawn before the write are dropped."""
-        self._pool = self._saved_pool = None
+        drawn before the write are dropped (``on_write="redraw"``, or a write not given as row indices)
+        or rescored where they hold a written row (``"keep"``)."""
+        self._saved_pool = None
+        pool = self._pool
+        rows = torch.as_tensor(index) if isinstance(index, (int, torch.Tensor)) else None
+        if self.on_write == "keep" and pool is not None and rows is not None and not rows.is_floating_point():
+            pool.written.append(rows.reshape(-1).long())
+        else:
+            self._pool = None
         self._written.mark(index)
 
     # Writes invalidate the EBP cache and the rows' cached vertices and distances.
@@ -372,6 +455,7 @@ class GraphCurriculumSampler(Sampler):
             neighbours=self.neighbours,
             unreachable_distance=self.unreachable_distance,
             draw_ahead=self.draw_ahead,
+            on_write=self.on_write,
             scale=self.scale,
             tradeoff=dict(self.tradeoff.state_dict()),
             pool=self._pool_state(),
@@ -383,6 +467,8 @@ class GraphCurriculumSampler(Sampler):
         pool = self._pool
         if pool is None or pool.next == len(pool.index):
             return self._saved_pool
+        if pool.written:  # rescored since the draw: drawing again would not give these candidates
+            return None
         return {
             "rng_state": base64.b64encode(pool.rng_state.numpy().tobytes()).decode("ascii"),
             "next": pool.next,
@@ -396,6 +482,7 @@ class GraphCurriculumSampler(Sampler):
         self.neighbours = None if state_dict["neighbours"] is None else int(state_dict["neighbours"])
         self.unreachable_distance = state_dict["unreachable_distance"]
         self.draw_ahead = int(state_dict.get("draw_ahead", self.draw_ahead))
+        self.on_write = state_dict.get("on_write", self.on_write)
         self.scale = state_dict.get("scale", self.scale)
         self.tradeoff.load_state_dict(state_dict["tradeoff"])
         self._empty()
@@ -413,6 +500,12 @@ class GraphCurriculumSampler(Sampler):
             f"tradeoff={self.tradeoff!r}, scale={self.scale!r}, energy_key={self.energy_key!r}, "
             f"neighbours={self.neighbours})"
         )
+
+
+def _lattice_dim(metric) -> int | None:
+    """The goal dimension of a metric's lattice (its field's), ``None`` without one."""
+    lattice = metric.lattice
+    return None if lattice is None else len(lattice.field[0])
 
 
 def curriculum_objective(

@@ -12,7 +12,7 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
-from gchgg.samplers._storage import WrittenRows, check_sampleable, dump_state, generator, load_state, read_field
+from gchgg.samplers._storage import WrittenRows, check_sampleable, dump_state, generator, init_signature, load_state, read_field
 from gchgg.validation import check_number
 
 __all__ = ["EnergySampler"]
@@ -57,6 +57,7 @@ class _Runs:
         return _Runs(cdf, table, guide, total, math.nextafter(total, 0.0))
 
 
+@init_signature
 class EnergySampler(Sampler):
     """Draws transitions with probability proportional to the energy stored beside them (EBP).
 

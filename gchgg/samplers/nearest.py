@@ -16,14 +16,29 @@ import torch
 
 from gchgg.validation import check_number
 
-__all__ = ["POINT_SIZE", "NearestNeighbours", "check_distances", "nearest_neighbour_distances"]
+__all__ = ["POINT_SIZE", "NearestNeighbours", "check_distances", "check_goals", "nearest_neighbour_distances", "point_size"]
 
-POINT_SIZE = 6  # values per shortlist point: (x, y, z, |p|², 1, id)
+POINT_SIZE = 6  # values per shortlist point of a 3-D goal: (x, y, z, |p|², 1, id); d + 3 for d-D goals
 _GRAPH_TOLERANCE = 1e-3  # metres: slack on a graph's straight-line bounds, besides half its table's resolution
 _RELATIVE_TOLERANCE = 1e-5  # slack on straight-line bounds between goals, per metre of their coordinates (>= 1 m)
 _LEVEL_SLACK = 2  # levels added to every squared distance so float32 rounding never makes one negative
 _INT32_MAX = 2**31 - 1
-_SWAP = torch.tensor([0, 1, 2, 4, 3])  # point columns (x, y, z, |p|², 1) -> (x, y, z, 1, |p|²)
+_SWAP = torch.tensor([0, 1, 2, 4, 3])  # point columns (x, y, z, |p|², 1) -> (x, y, z, 1, |p|²), 3-D goals
+
+
+def point_size(dim: int) -> int:
+    """Values per shortlist point of ``dim``-D goals: the position, ``|p|²``, 1 and the vertex id."""
+    return dim + 3
+
+
+def check_goals(goals, name: str, dim: int | None = None) -> torch.Tensor:
+    """``goals`` as a tensor of shape ``[..., d]`` (d ≥ 1, and ``d == dim`` when given); a ``ValueError``
+    naming ``name``, the shape and what is allowed otherwise."""
+    goals = torch.as_tensor(goals)
+    if goals.ndim < 1 or goals.shape[-1] < 1 or (dim is not None and goals.shape[-1] != dim):
+        allowed = f"[..., {dim}] (the goal space has {dim} dimensions)" if dim is not None else "[..., d] with d >= 1"
+        raise ValueError(f"{name} must have shape {allowed}, got shape {tuple(goals.shape)}")
+    return goals
 
 
 def nearest_neighbour_distances(
@@ -34,7 +49,7 @@ def nearest_neighbour_distances(
     A one-off :class:`NearestNeighbours` (which keeps its scratch memory between calls).
 
     Args:
-        goals: ``[K, B, 3]``: K batches of B goals.
+        goals: ``[K, B, d]``: K batches of B goals (any dimension d ≥ 1).
         metric: object with ``distance(a, b)``.
         neighbours: shortlist length, ``"auto"`` or ``None`` for all pairs (see :class:`NearestNeighbours`).
         block: goals per block of the shortlist search (see :class:`NearestNeighbours`).
@@ -50,7 +65,8 @@ def nearest_neighbour_distances(
 class NearestNeighbours:
     """Exact nearest-neighbour metric distances within batches of goals, via a Euclidean shortlist.
 
-    Each goal becomes a *point* once (:meth:`points`, which a sampler can cache per stored row):
+    Goals may have any dimension d ≥ 1 (fixed by the metric's lattice, or by the first goals made
+    points). Each goal becomes a *point* once (:meth:`points`, which a sampler can cache per stored row):
     its position relative to a fixed origin (the lattice vertex for a graph metric, whose
     distance never undercuts the straight line between vertices; off-graph goals parked together
     far outside the field), the squared norm, a 1, and its vertex index (graph) or 0.
@@ -74,7 +90,7 @@ class NearestNeighbours:
     would not be), K·B·neighbours metric reads, and a few more per unproven goal.
 
     Args:
-        metric: object with ``distance(a, b)`` on goals ``[..., 3]``.
+        metric: object with ``distance(a, b)`` on goals ``[..., d]``.
         neighbours: shortlist length ≥ 1, ``None`` to score all pairs with the metric, or ``"auto"``
             (default): 3 for a metric with a lattice (graph distances reorder the straight-line
             nearest goals), 1 for one without (the straight line already orders them). The result
@@ -101,6 +117,7 @@ class NearestNeighbours:
         self._park: torch.Tensor | None = None  # where off-graph goals are put
         self._reach = 0.0  # graph: the largest |p| of any point (the parking distance)
         self._scale = 0.0  # no graph: the largest absolute coordinate of any goal made a point
+        self._dim: int | None = None if self._graph is None else len(self._graph.field[0])  # goal dimension d
         self._scratch: dict[Any, Any] = {}
 
     @property
@@ -108,14 +125,22 @@ class NearestNeighbours:
         """Whether the metric has a :class:`~gchgg.graph.Lattice` whose vertices goals are snapped to."""
         return self._snap
 
+    @property
+    def dim(self) -> int | None:
+        """The goals' dimension d (``None`` until the first goals are made points, for a metric without a lattice)."""
+        return self._dim
+
     def points(self, goals: torch.Tensor) -> torch.Tensor:
-        """float32 ``[..., 6]`` shortlist points of goals ``[..., 3]``: ``(x, y, z, |p|², 1, id)``.
+        """float32 ``[..., d + 3]`` shortlist points of goals ``[..., d]``: ``(p, |p|², 1, id)``, e.g.
+        ``(x, y, z, |p|², 1, id)`` for 3-D goals.
 
         ``p`` is the goal's lattice vertex (graph metrics; off-graph goals: a parking spot far outside
         the field) or the goal itself, relative to a fixed origin (the field's centre, or the first
         goals' mean); ``id`` is the vertex index (``-1`` off the graph) or 0.
         """
-        goals = torch.as_tensor(goals)
+        goals = check_goals(goals, "goals", self._dim)
+        if self._dim is None:
+            self._dim = goals.shape[-1]
         if self._snap:
             self._setup_graph()
             vertex = self._graph.vertex_index(goals)
@@ -126,8 +151,8 @@ class NearestNeighbours:
             if not bool(torch.isfinite(goals).all()):
                 raise ValueError("goals must be finite for a metric without a graph (NaN or inf found)")
             if self._origin is None:
-                flat = goals.reshape(-1, 3)
-                self._origin = flat.mean(0) if len(flat) else torch.zeros(3)
+                flat = goals.reshape(-1, goals.shape[-1])
+                self._origin = flat.mean(0) if len(flat) else torch.zeros(goals.shape[-1])
                 self._axis = int(flat.std(0).argmax()) if len(flat) > 1 else 0
             if goals.numel():
                 self._scale = max(self._scale, float(goals.abs().amax()))
@@ -149,29 +174,32 @@ class NearestNeighbours:
         # vertices are apart, and sorted after all of them.
         diagonal = 2.0 * float(half.norm())
         self._reach = 1.5 * max(diagonal, 1e-3)
-        self._park = torch.zeros(3)
+        self._park = torch.zeros(len(half))
         self._park[self._axis] = self._reach
 
     def __call__(self, goals: torch.Tensor, *, stats: dict | None = None) -> torch.Tensor:
-        """Nearest-neighbour distances ``[K, B]`` of goals ``[K, B, 3]``."""
-        goals = torch.as_tensor(goals)
+        """Nearest-neighbour distances ``[K, B]`` of goals ``[K, B, d]``."""
+        goals = check_goals(goals, "goals", self._dim)
+        if goals.ndim != 3:
+            raise ValueError(f"goals must have shape [K, B, d] (K batches of B goals), got shape {tuple(goals.shape)}")
         return self.from_points(self.points(goals), None if self._snap else goals, stats=stats)
 
     def from_points(
         self, points: torch.Tensor, goals: torch.Tensor | None = None, *, stats: dict | None = None
     ) -> torch.Tensor:
-        """Nearest-neighbour distances ``[K, B]`` from the goals' :meth:`points` ``[K, B, 6]`` (made by this
-        object). A metric without a graph also needs the goals ``[K, B, 3]`` themselves."""
+        """Nearest-neighbour distances ``[K, B]`` from the goals' :meth:`points` ``[K, B, d + 3]`` (made by
+        this object). A metric without a graph also needs the goals ``[K, B, d]`` themselves."""
         k, b = points.shape[:2]
+        ident = points.shape[-1] - 1  # column of the vertex index
         if b < 2:
             return torch.full((k, b), math.inf)
         if not self._snap and goals is None:
-            raise ValueError("NearestNeighbours.from_points: a metric without a graph needs the goals [K, B, 3]")
+            raise ValueError("NearestNeighbours.from_points: a metric without a graph needs the goals [K, B, d]")
         m = self.neighbours
         if m is None or m >= b - 1:  # all pairs
             if stats is not None:
                 stats["rescored"] = 0
-            distance = self._pairs(points[..., 5].long(), goals)(
+            distance = self._pairs(points[..., ident].long(), goals)(
                 torch.arange(b).view(1, b, 1), torch.arange(b).view(1, 1, b), torch.arange(k).view(k, 1, 1)
             ).clone()
             distance.diagonal(dim1=-2, dim2=-1).fill_(math.inf)
@@ -184,7 +212,7 @@ class NearestNeighbours:
         points = points.gather(1, order.unsqueeze(-1).expand(points.shape))
         if goals is not None and not self._snap:
             goals = goals.gather(1, order.unsqueeze(-1).expand(k, b, goals.shape[-1]))
-        vertex = points[..., 5].long()  # [K, B]: -1 off the graph (and 0 for other metrics)
+        vertex = points[..., ident].long()  # [K, B]: -1 off the graph (and 0 for other metrics)
         pair = self._pairs(vertex, goals)
         cols, bound = self._shortlist(points, m)  # sorted positions [K, B, m], lower bound [K, B] on the rest
         if self._snap:  # the same lookup as pair(rows, cols, batch), with fewer index operations
@@ -192,7 +220,8 @@ class NearestNeighbours:
             nearest = self._lookup(vertex.unsqueeze(-1), candidates).amin(-1)  # [K, B]
         else:
             others = goals.gather(1, cols.reshape(k, b * m, 1).expand(k, b * m, goals.shape[-1])).view(k, b, m, -1)
-            nearest = check_distances(self.metric.distance(goals.unsqueeze(2), others), "diversity metric").amin(-1)
+            nearest = check_distances(self.metric.distance(goals.unsqueeze(2), others), "diversity metric", (k, b, m))
+            nearest = nearest.amin(-1)
         # A goal equal to the goal sorted before it (an object at rest repeats its position; for a
         # graph: at the same vertex) is as far from every goal as that one: the pair is read (0 for
         # any metric, inf off a graph), and later only the first goal of such a run is a candidate.
@@ -239,8 +268,8 @@ class NearestNeighbours:
             cols = (ii.unsqueeze(1) + torch.arange(-reach, reach + 1)).clamp_(0, b - 1)
         at = cols.add((kk * b).unsqueeze(1)).view(-1)
         own = kk * b + ii
-        straight = None
-        for plane in points[..., :3].permute(2, 0, 1).reshape(3, k * b):  # a difference per coordinate plane is fast
+        straight, dim = None, points.shape[-1] - 3
+        for plane in points[..., :dim].permute(2, 0, 1).reshape(dim, k * b):  # a difference per coordinate plane is fast
             term = plane.index_select(0, at).view(cols.shape).sub_(plane.index_select(0, own).unsqueeze(1)).square_()
             straight = term if straight is None else straight.add_(term)
         straight.sqrt_().sub_(self._tolerance()).masked_fill_(cols == ii.unsqueeze(1), math.inf)  # not itself
@@ -278,7 +307,8 @@ class NearestNeighbours:
             metric = self.metric
 
             def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
-                return check_distances(metric.distance(goals[batch, rows], goals[batch, cols]), "diversity metric")
+                shape = rows.shape if rows.shape == cols.shape == batch.shape else torch.broadcast_shapes(rows.shape, cols.shape, batch.shape)
+                return check_distances(metric.distance(goals[batch, rows], goals[batch, cols]), "diversity metric", shape)
 
         return pair
 
@@ -296,29 +326,30 @@ class NearestNeighbours:
         return _RELATIVE_TOLERANCE * max(1.0, self._scale)
 
     def _shortlist(self, points: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """For points sorted along the axis ``[K, B, 6]``: each one's m nearest others in its window, as
+        """For points sorted along the axis ``[K, B, d + 3]``: each one's m nearest others in its window, as
         sorted positions ``[K, B, m]``, and a lower bound in metres ``[K, B]`` on its straight-line
         distance to every other goal (outside the window: the gap along the axis)."""
-        k, b, _ = points.shape
+        k, b, size_of_point = points.shape
+        dim = size_of_point - 3  # goal dimension d; columns (p, |p|², 1, id)
         layout = self._layout(b, m)
         size, pad, blocks, width, stride = (layout[key] for key in ("size", "pad", "blocks", "width", "stride"))
         levels = _levels(stride)
         # |p_i − p_j| ≤ 2·max|p|: no pair is above the top level, so no clamp is needed. For a graph
         # max|p| is the parking distance; otherwise it is read from the points.
-        reach = self._reach if self._snap else float(points[..., 3].amax()) ** 0.5
+        reach = self._reach if self._snap else float(points[..., dim].amax()) ** 0.5
         quantum = max(4.0 * reach * reach, 1e-12) / levels
-        left = points[..., :5]  # [p, |p|², 1]
+        left = points[..., : dim + 2]  # [p, |p|², 1]
         rows = blocks * size
         if pad or rows != b:  # padding rows (zeros, masked below) around the sorted goals
-            padded = left.new_zeros(k, rows + 2 * pad, 5)
+            padded = left.new_zeros(k, rows + 2 * pad, dim + 2)
             padded[:, pad : pad + b] = left
         else:
             padded = left
         # [p, |p|², 1] -> [-2p, 1, |p|² + slack·q] / q (padding rows -> [0, 0, slack]).
-        scale, shift = self._product_map(quantum)
-        right = torch.addcmul(shift, padded.index_select(-1, _SWAP), scale)
-        windows = right.unfold(1, width, size).reshape(k * blocks, 5, width)
-        own = padded[:, pad : pad + rows].reshape(k * blocks, size, 5)
+        scale, shift, swap = self._product_map(quantum, dim)
+        right = torch.addcmul(shift, padded.index_select(-1, swap), scale)
+        windows = right.unfold(1, width, size).reshape(k * blocks, dim + 2, width)
+        own = padded[:, pad : pad + rows].reshape(k * blocks, size, dim + 2)
         squared = self._buffer("squared", (k * blocks, size, width), torch.float32)
         torch.bmm(own, windows, out=squared)  # squared distance in levels, + _LEVEL_SLACK
         # In place (same 4-byte slots, element by element: one scratch matrix, half the cache footprint).
@@ -394,13 +425,15 @@ class NearestNeighbours:
             cached = self._scratch[("starts", rows, width)] = torch.arange(0, rows * width, width)
         return cached
 
-    def _product_map(self, quantum: float) -> tuple[torch.Tensor, torch.Tensor]:
-        """``scale, shift`` with ``[p, 1, |p|²] · scale + shift = [-2p, 1, |p|² + slack·q] / q`` (kept per quantum)."""
+    def _product_map(self, quantum: float, dim: int = 3) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``scale, shift, swap`` with ``[p, |p|², 1][swap] · scale + shift = [-2p, 1, |p|² + slack·q] / q``
+        for ``dim``-D points (kept per quantum and dimension)."""
         cached = self._scratch.get("map")
-        if cached is None or cached[0] != quantum:
-            scale = torch.tensor([-2.0, -2.0, -2.0, 1.0, 1.0]) / quantum
-            shift = torch.tensor([0.0, 0.0, 0.0, 0.0, float(_LEVEL_SLACK)])
-            cached = self._scratch["map"] = (quantum, (scale, shift))
+        if cached is None or cached[0] != (quantum, dim):
+            scale = torch.tensor([-2.0] * dim + [1.0, 1.0]) / quantum
+            shift = torch.tensor([0.0] * (dim + 1) + [float(_LEVEL_SLACK)])
+            swap = _SWAP if dim == 3 else torch.tensor([*range(dim), dim + 1, dim])
+            cached = self._scratch["map"] = ((quantum, dim), (scale, shift, swap))
         return cached[1]
 
     def _buffer(self, name: str, shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
@@ -421,9 +454,17 @@ def _distance(level: torch.Tensor, quantum: float) -> torch.Tensor:
     return (level - (_LEVEL_SLACK + 1)).clamp_(min=0).float().mul_(quantum).sqrt_()
 
 
-def check_distances(distance: torch.Tensor, name: str) -> torch.Tensor:
-    """``distance`` as a tensor; a ``ValueError`` naming the metric if it holds NaN."""
+def check_distances(distance: torch.Tensor, name: str, shape: torch.Size | tuple | None = None) -> torch.Tensor:
+    """``distance`` as a float32 tensor (a metric returning another dtype, e.g. float64, is cast); a
+    ``ValueError`` naming the metric if it holds NaN or, when ``shape`` is given, has another shape."""
     distance = torch.as_tensor(distance)
+    if shape is not None and distance.shape != torch.Size(shape):
+        raise ValueError(
+            f"the {name} must return one distance per pair of goals, shape {tuple(shape)} here "
+            f"(goals [..., d] -> [...]), got shape {tuple(distance.shape)}"
+        )
+    if distance.dtype != torch.float32:
+        distance = distance.to(torch.float32)
     if bool(torch.isnan(distance).any()):
         raise ValueError(f"the {name} returned NaN distances; goals must be finite")
     return distance

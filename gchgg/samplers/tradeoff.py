@@ -135,6 +135,14 @@ class AdaptiveTradeoff:
     estimates as the mean matched distance of the iteration. A large D (intermediate goals far from
     the targets) gives λ ≈ 0: pure diversity; as D shrinks λ grows towards η: proximity.
 
+    Without a goal generator (no HGG: episodes collected for their own goals) nothing ever calls
+    :meth:`update` with a distance, and λ stays at ``initial`` (0: pure diversity) for the whole run.
+    There, pick :class:`FixedTradeoff` (a constant λ; with ``scale="standardized"`` in the curriculum
+    sampler λ = 1 weighs the two terms equally) or :class:`ExponentialTradeoff` (CHER's eq. 4: λ
+    grows from λ_0 by (1 + τ) per ``update()``, e.g. once per iteration: diversity first, proximity
+    later), or call ``update(distance=D)`` yourself with your own measure of how far the goals
+    trained on are from the goals that matter.
+
     When D is read (``update_every``):
 
     * ``"iteration"`` (the paper): :meth:`begin_iteration` sets λ once per iteration from the mean

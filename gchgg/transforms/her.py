@@ -32,6 +32,7 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from torchrl.envs.transforms import Transform
 
+from gchgg.transforms._mask import DEFAULT_MASK_KEY, episode_lengths
 from gchgg.validation import check_number
 
 __all__ = ["DEFAULT_DROP_KEYS", "GoalToNext", "HerStrategy", "HindsightRelabel"]
@@ -70,10 +71,20 @@ class HindsightRelabel(Transform):
 
     Use it as a collector ``postproc`` or call it on a rollout before ``buffer.extend``; it is not an
     env transform and not a buffer transform (its ``forward`` relabels). The input's last batch
-    dimension is time and must hold whole episodes (``T`` steps each).
+    dimension is time and must hold whole episodes (``T`` steps each). Goals may have any
+    dimension d ≥ 1 (``goal_key`` and ``("next", achieved_goal_key)`` ``[..., T, d]``, the same d).
+
+    Variable-length episodes: pad them to ``[N, Tmax]`` with TorchRL's ``split_trajectories``, which
+    marks the real steps in a boolean mask (``("collector", "mask")`` for a collector's batch, the
+    default ``mask_key``; name another with ``mask_key=``). Episode n of length L_n then draws its
+    hindsight goals from its own valid steps only (``future``: ``t' ∈ (t, L_n]``; ``final``:
+    ``ag_{L_n}``; ``episode``: ``t' ∈ [1, L_n]``) and only its ``(k+1)·L_n`` real rows are returned
+    (``flatten=True``; row order as below with the padded steps left out). Without a mask every step
+    counts as real: a padded batch whose mask is missing or under another key is relabelled with the
+    padding's goals.
 
     Args:
-        reward_fn: pure batched reward ``reward_fn(achieved_goal [..., 3], goal [..., 3]) -> [...]``
+        reward_fn: pure batched reward ``reward_fn(achieved_goal [..., d], goal [..., d]) -> [...]``
             (eq. 23 for the KUKA tasks). It is evaluated on ``("next", achieved_goal_key)`` and the
             transition's goal, for the original transitions too, so every stored reward comes from it.
         k: relabelled copies per step (≥ 0); HER's "future, k = 4" keeps 1/5 original transitions.
@@ -92,7 +103,11 @@ class HindsightRelabel(Transform):
         reward_key: reward entry to overwrite (same shape and dtype). Default ``("next", "reward")``.
         drop_keys: entries not stored (missing ones are ignored). Default :data:`DEFAULT_DROP_KEYS`.
         flatten: ``True`` (default) returns ``[N·(k+1)·T]`` transitions for a ``[N, T]`` input (any
-            leading batch shape is flattened); ``False`` returns ``[..., k+1, T]``.
+            leading batch shape is flattened); ``False`` returns ``[..., k+1, T]`` (not for padded
+            episodes: it cannot leave out their padded rows).
+        mask_key: boolean valid-step mask ``[..., T]`` of padded episodes, used when the input has it
+            (valid steps first in each episode); ``None`` ignores any mask. Default
+            ``("collector", "mask")``. It is not stored.
 
     Returns (of ``forward``):
         A new TensorDict; the input is not modified.
@@ -137,6 +152,7 @@ class HindsightRelabel(Transform):
         reward_key: NestedKey = ("next", "reward"),
         drop_keys: Sequence[NestedKey] = DEFAULT_DROP_KEYS,
         flatten: bool = True,
+        mask_key: NestedKey | None = DEFAULT_MASK_KEY,
     ) -> None:
         super().__init__(in_keys=[], out_keys=[])
         if not callable(reward_fn):
@@ -160,6 +176,7 @@ class HindsightRelabel(Transform):
         self.reward_key = reward_key
         self.drop_keys = tuple(drop_keys)
         self.flatten = bool(flatten)
+        self.mask_key = mask_key
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         if tensordict.batch_dims < 1 or tensordict.shape[-1] < 1:
@@ -177,11 +194,24 @@ class HindsightRelabel(Transform):
                     f"HindsightRelabel reads {key!r} from the episode, which has keys "
                     f"{sorted(map(str, tensordict.keys(include_nested=True, leaves_only=True)))}"
                 )
-        goal = tensordict.get(self.goal_key)  # [*batch, T, 3]
-        achieved_next = tensordict.get(next_key)  # [*batch, T, 3]: ag_1 .. ag_T
+        goal = tensordict.get(self.goal_key)  # [*batch, T, d]
+        achieved_next = tensordict.get(next_key)  # [*batch, T, d]: ag_1 .. ag_T
+        for key, value in ((self.goal_key, goal), (next_key, achieved_next)):
+            if value.ndim != tensordict.batch_dims + 1 or value.shape[-1] < 1 or value.shape[-1] != goal.shape[-1]:
+                raise ValueError(
+                    f"HindsightRelabel needs goals of one dimension d >= 1 per step: {key!r} must have shape "
+                    f"[..., T, d] = {(*tensordict.shape, goal.shape[-1] if goal.ndim > tensordict.batch_dims else 'd')}"
+                    f" like {self.goal_key!r}, got {tuple(value.shape)}"
+                )
+        lengths = episode_lengths(tensordict, self.mask_key, "HindsightRelabel")
+        if lengths is not None and not self.flatten:
+            raise ValueError(
+                f"HindsightRelabel(flatten=False) cannot leave out padded rows, and the input has a valid-step mask "
+                f"{self.mask_key!r}: use flatten=True (only real rows are returned), or mask_key=None to keep them"
+            )
 
         # Copy c of step t takes the next achieved goal of step source[..., c - 1, t].
-        source = self._hindsight_steps(batch, steps).to(achieved_next.device)  # [*batch, k, T]
+        source = self._hindsight_steps(batch, steps, lengths).to(achieved_next.device)  # [*batch, k, T]
         hindsight = torch.gather(
             achieved_next.unsqueeze(-3).expand(*batch, self.k, steps, achieved_next.shape[-1]),
             -2,
@@ -201,28 +231,40 @@ class HindsightRelabel(Transform):
             )
         reward = reward.reshape(*expected, *tail).to(old_reward.dtype)
 
-        out = tensordict.exclude(*self.drop_keys).unsqueeze(len(batch)).expand(*batch, copies, steps)
+        drop = self.drop_keys if lengths is None else (*self.drop_keys, self.mask_key)
+        out = tensordict.exclude(*drop).unsqueeze(len(batch)).expand(*batch, copies, steps)
         out.set(self.goal_key, goals)
         out.set(self.target_key, goal.unsqueeze(-3).expand(*batch, copies, steps, goal.shape[-1]))
         out.set(self.reward_key, reward)
         if self._next(self.goal_key) in out.keys(include_nested=True):
             out.set(self._next(self.goal_key), goals)
+        if lengths is not None:  # the real rows only, in row order (n, c, t)
+            valid = torch.arange(steps, device=lengths.device) < lengths.unsqueeze(-1)  # [*batch, T]
+            return out[valid.unsqueeze(-2).expand(*batch, copies, steps)]
         if self.flatten:
             return out.reshape(-1)  # materialises every entry once, in row order (n, c, t)
         return out.clone()
 
-    def _hindsight_steps(self, batch: torch.Size, steps: int) -> torch.Tensor:
-        """Index ``u`` in ``[0, T)`` of the step whose *next* achieved goal each copy uses."""
+    def _hindsight_steps(self, batch: torch.Size, steps: int, lengths: torch.Tensor | None = None) -> torch.Tensor:
+        """Index ``u`` in ``[0, T)`` of the step whose *next* achieved goal each copy uses; with episode
+        ``lengths`` ``[*batch]`` (padded episodes), in ``[0, L)`` of each episode (padded steps' copies: any)."""
         shape = (*batch, self.k, steps)
+        if lengths is None:
+            last = steps - 1
+        else:  # [*batch, 1, 1]; an empty episode (L = 0) has no rows to fill
+            last = (lengths - 1).clamp(min=0).view(*batch, 1, 1).cpu()
         if self.strategy is HerStrategy.FINAL:
-            return torch.full(shape, steps - 1, dtype=torch.long)
+            return torch.full(shape, steps - 1, dtype=torch.long) if lengths is None else last.expand(shape).clone()
         uniform = torch.rand(shape, generator=self.generator, device=self.generator.device)
+        length = steps if lengths is None else last + 1
         if self.strategy is HerStrategy.EPISODE:
-            return (uniform * steps).long().clamp_(max=steps - 1)
+            return torch.minimum((uniform * length).long(), torch.as_tensor(last)).clamp_(min=0)
         # FUTURE: u = t + floor(U · (T − t)) is uniform in {t, …, T − 1};
         # e.g. T = 100, t = 97: U < 1/3 → 97, U < 2/3 → 98, else 99.
         t = torch.arange(steps, device=uniform.device)
-        return (t + (uniform * (steps - t)).long()).clamp_(max=steps - 1)
+        if lengths is None:
+            return (t + (uniform * (steps - t)).long()).clamp_(max=steps - 1)
+        return torch.minimum(t + (uniform * (length - t)).long(), last).clamp_(min=0)
 
     @staticmethod
     def _next(key: NestedKey) -> tuple:
