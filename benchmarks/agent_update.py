@@ -16,9 +16,9 @@ update against the faster one, the same agent with its layers on oneDNN (``matmu
 on CPUs with native bfloat16), in alternating rounds, and prints how far the two agree on one fixed batch
 (losses and gradients, relative to their largest entry) and how far their weights and actions drift
 apart over the run's updates, beside the drift of a torch-BLAS twin fed each batch in reverse row
-order: the same math, other float32 rounding, which training amplifies in both. ``--compile`` also times the same agent with
-``torch.compile`` on its loss (a candidate that lost) against today's; ``--profile`` prints both
-updates' top operators.
+order: the same math, other float32 rounding, which training amplifies in both. ``--compile`` also
+times the same agent with ``torch.compile`` on its loss (a candidate that lost) against today's;
+``--profile`` prints both updates' top operators.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ class BareDDPG:
         if self.num_updates % self.every == 0:
             with torch.no_grad():
                 for net, target_net in ((self.actor, self.target_actor), (self.critic, self.target_critic)):
-                    for p, p_target in zip(net.parameters(), target_net.parameters()):
+                    for p, p_target in zip(net.parameters(), target_net.parameters(), strict=True):
                         p_target.lerp_(p, 1.0 - self.polyak)
         return values[0], values[1]
 
@@ -133,7 +133,8 @@ def main() -> None:
     parser.add_argument("--compile", action="store_true",
                         help="also time the agent with torch.compile on its loss (the candidate faster update)")
     parser.add_argument("--min-features", type=int, default=MIN_FEATURES,
-                        help="layers narrower than this stay on torch BLAS in the oneDNN agent (gchgg.linear.MIN_FEATURES)")
+                        help="layers narrower than this stay on torch BLAS in the oneDNN agent "
+                             "(gchgg.linear.MIN_FEATURES)")
     parser.add_argument("--profile", action="store_true", help="also print the update's top operators (torch.profiler)")
     args = parser.parse_args()
     if args.threads is not None:
@@ -205,14 +206,14 @@ def _fixed_batch_agreement(a: DDPGAgent, b: DDPGAgent, batch) -> tuple[float, fl
         gaps.append(out[:2])
         for p in loss.parameters():
             p.grad = None
-    loss_gap = max(((x - y).abs() / x.abs()).item() for x, y in zip(*gaps))
-    grad_gap = max(((x - y).abs().max() / x.abs().max().clamp_min(1e-30)).item() for x, y in zip(*grads))
+    loss_gap = max(((x - y).abs() / x.abs()).item() for x, y in zip(*gaps, strict=True))
+    grad_gap = max(((x - y).abs().max() / x.abs().max().clamp_min(1e-30)).item() for x, y in zip(*grads, strict=True))
     return loss_gap, grad_gap
 
 
 def _drift(a: DDPGAgent, b: DDPGAgent, batch) -> tuple[float, float]:
     """Largest difference of the two actors' weights and of their actions on ``batch``."""
-    weights = max((x - y).abs().max().item() for x, y in zip(a.actor.parameters(), b.actor.parameters()))
+    weights = max((x - y).abs().max().item() for x, y in zip(a.actor.parameters(), b.actor.parameters(), strict=True))
     with torch.no_grad():
         actions = (a.actor(batch["observation"], batch["desired_goal"])
                    - b.actor(batch["observation"], batch["desired_goal"])).abs().max().item()  # fmt: skip
@@ -243,7 +244,8 @@ def onednn_update(agent: DDPGAgent, onednn: DDPGAgent, batches, rounds: int, upd
     reversed_batches = [b[torch.arange(len(b) - 1, -1, -1)] for b in batches]
     today, fast = _alternate(agent, onednn, batches, rounds, updates,
                              between=lambda: [twin.update(reversed_batches[i % len(batches)]) for i in range(updates)])
-    print(f"oneDNN layers (matmul=onednn, layers >= {min_features} wide): {statistics.median(fast) * 1e3:.3f} ms/update against "
+    print(f"oneDNN layers (matmul=onednn, layers >= {min_features} wide): "
+          f"{statistics.median(fast) * 1e3:.3f} ms/update against "
           f"{statistics.median(today) * 1e3:.3f} on torch BLAS: speed-up "
           f"{statistics.median(today) / statistics.median(fast):.2f}x (target >= 1.3)")
     print(f"  one fixed batch: losses agree to {loss_gap:.1e}, gradients to {grad_gap:.1e} of their largest entry")
@@ -258,14 +260,16 @@ def bf16_update(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
     float32 accumulation, parameters and optimiser state), alternating rounds; their agreement on a
     fixed batch and how far they drift apart."""
     if not bf16_available():
-        print("bfloat16 products (precision=bfloat16): skipped, this CPU or torch has no native bfloat16 oneDNN products")
+        print("bfloat16 products (precision=bfloat16): skipped, this CPU or torch has no native bfloat16 "
+              "oneDNN products")
         return
     candidate = copy.deepcopy(onednn)
     candidate.precision = "bfloat16"
     loss_gap, grad_gap = _fixed_batch_agreement(onednn, candidate, batches[0])
     fp32, bf16 = _alternate(onednn, candidate, batches, rounds, updates)
     print(f"bfloat16 products (precision=bfloat16, oneDNN): {statistics.median(bf16) * 1e3:.3f} ms/update against "
-          f"{statistics.median(fp32) * 1e3:.3f} in float32 on oneDNN: speed-up {statistics.median(fp32) / statistics.median(bf16):.2f}x")
+          f"{statistics.median(fp32) * 1e3:.3f} in float32 on oneDNN: speed-up "
+          f"{statistics.median(fp32) / statistics.median(bf16):.2f}x")
     print(f"  one fixed batch: losses agree to {loss_gap:.1e}, gradients to {grad_gap:.1e} of their largest entry; "
           "after {} updates actor weights / actions apart by {:.2g} / {:.2g}".format(
               rounds * updates, *_drift(onednn, candidate, batches[-1])))
@@ -283,7 +287,8 @@ def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> Non
     agent.update(batches[0])
     compile_seconds = time.perf_counter() - start
     today, compiled = _alternate(agent, candidate, batches, rounds, updates)
-    drift = max((a - b).abs().max().item() for a, b in zip(agent.actor.parameters(), candidate.actor.parameters()))
+    drift = max((a - b).abs().max().item()
+                for a, b in zip(agent.actor.parameters(), candidate.actor.parameters(), strict=True))
     print(f"torch.compile of the loss: {compile_seconds:.0f} s to compile; {statistics.median(compiled) * 1e3:.3f} "
           f"ms/update against {statistics.median(today) * 1e3:.3f}: speed-up "
           f"{statistics.median(today) / statistics.median(compiled):.2f}x (target >= 1.3); actor weights apart by "
@@ -299,7 +304,8 @@ def profile_update(agent: DDPGAgent, batches, updates: int, name: str) -> None:
             agent.update(batches[i % len(batches)])
     events = sorted(prof.key_averages(), key=lambda e: -e.self_cpu_time_total)
     total = sum(e.self_cpu_time_total for e in events)
-    print(f"{name}: profile of {updates} updates ({total / updates / 1e3:.2f} ms each), top operators by self CPU time:")
+    print(f"{name}: profile of {updates} updates ({total / updates / 1e3:.2f} ms each), "
+          "top operators by self CPU time:")
     for e in events[:8]:
         print(f"  {e.key:28s} {e.self_cpu_time_total / total:6.1%}")
 

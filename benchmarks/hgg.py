@@ -56,7 +56,8 @@ def make_value_fn(generator: torch.Generator):
         inputs = torch.cat([observation, goal], dim=-1)
         return critic(torch.cat([inputs, actor(inputs)], dim=-1)).squeeze(-1).clamp(-50.0, 0.0)
 
-    flops_per_point = 2 * sum(m.weight.numel() for m in [*actor.modules(), *critic.modules()] if isinstance(m, nn.Linear))
+    flops_per_point = 2 * sum(m.weight.numel() for m in [*actor.modules(), *critic.modules()]
+                              if isinstance(m, nn.Linear))
     return value, flops_per_point
 
 

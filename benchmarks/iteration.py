@@ -305,7 +305,7 @@ def main() -> None:
         detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
         print(f"gchgg C={chunks:<3d} {total:6.2f} s/iteration  ({detail})", flush=True)
     if {1, 50} <= set(by_chunks):
-        ratios = [c50 / c1 for c50, c1 in zip(rounds[50], rounds[1])]
+        ratios = [c50 / c1 for c50, c1 in zip(rounds[50], rounds[1], strict=True)]
         print(f"gchgg C=50 / C=1 = {statistics.median(ratios):.2f} (target <= 1.2): the median over "
               f"{len(ratios)} alternating rounds of the ratio within a round ({', '.join(f'{r:.2f}' for r in ratios)})")
     if args.overlap:

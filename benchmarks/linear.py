@@ -69,8 +69,9 @@ def main() -> None:
                 for r in range(args.rounds):
                     for fn, times in ((blas, t_blas), (onednn, t_dnn))[:: 1 if r % 2 else -1]:
                         times.append(_time(fn, args.calls))
-                ratio = statistics.median(a / b for a, b in zip(t_blas, t_dnn))
-                cells.append(f"{statistics.median(t_blas) * 1e6:7.1f} | {statistics.median(t_dnn) * 1e6:7.1f} | {ratio:4.2f}")
+                ratio = statistics.median(a / b for a, b in zip(t_blas, t_dnn, strict=True))
+                cells.append(f"{statistics.median(t_blas) * 1e6:7.1f} | "
+                             f"{statistics.median(t_dnn) * 1e6:7.1f} | {ratio:4.2f}")
             print(f"{n_in:>4}→{n_out:<4} {batch:>5}  " + "  ".join(f"{c:>24}" for c in cells))
 
 

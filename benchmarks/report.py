@@ -26,7 +26,8 @@ HEADER = """# Benchmarks
 
 Written by the scripts in `benchmarks/` (`python benchmarks/<name>.py --docs`); do not edit by hand.
 Each section is the script's output from its last run with `--docs`, under the commit, date,
-machine and load average it ran with (and how the machine was shared, where that was noted). Speed is printed as ratios measured in the same run: the
+machine and load average it ran with (and how the machine was shared, where that was noted). \
+Speed is printed as ratios measured in the same run: the
 machines are shared and noisy, so absolute times vary between runs by up to 2x.
 """
 

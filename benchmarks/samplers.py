@@ -173,7 +173,7 @@ def speed(graph: GoalGraph, episodes: int, rounds: int) -> None:
     repeats = {name: (10 if name.startswith("CHER") else 50) for name in buffers}
     times: dict[str, list[float]] = {name: [] for name in buffers}
     alone: dict[str, list[float]] = {name: [] for name in buffers}  # the sampler's sample() without the row gather
-    for name, buffer in buffers.items():  # warm-up (EBP cache, graph vertices)
+    for buffer in buffers.values():  # warm-up (EBP cache, graph vertices)
         buffer.sample()
     for _ in range(rounds):
         for name, buffer in buffers.items():
@@ -236,8 +236,8 @@ def cher_speed(storage: LazyTensorStorage, rounds: int, pool: int = 5000, repeat
         lazier_than_lazy_greedy(neighbour, similarity, penalty, BATCH, cher.subset_size, rng)
         parts["greedy"].append(time.perf_counter() - clock)
         distinct.append(len(set(nearest_other(goals.double().numpy())[0].tolist())))
-    print(f"CHER (pool {pool:,}, k = 1, subsets of 3) against uniform, buffer.sample() of {BATCH} from the buffer above, "
-          f"median of {rounds} interleaved rounds:")
+    print(f"CHER (pool {pool:,}, k = 1, subsets of 3) against uniform, buffer.sample() of {BATCH} "
+          f"from the buffer above, median of {rounds} interleaved rounds:")
     for threads in thread_counts:
         uniform, seconds = (statistics.median(times[name, threads]) for name in ("uniform", "CHER"))
         label = "default" if threads == DEFAULT_THREADS else "one"
@@ -259,14 +259,16 @@ def ebp_after_a_write(storage: LazyTensorStorage, rounds: int, repeats: int = 10
     sampler.sample(storage, BATCH)
     times: dict[str, list[float]] = {"rows": [], "all": []}
     for r in range(rounds):
-        for kind, written in (("rows", torch.arange(r * rows, (r + 1) * rows)), ("all", slice(r * rows, (r + 1) * rows))):
+        for kind, written in (("rows", torch.arange(r * rows, (r + 1) * rows)),
+                              ("all", slice(r * rows, (r + 1) * rows))):
             start = time.perf_counter()
             for _ in range(repeats):
                 sampler.extend(written)
                 sampler.sample(storage, BATCH)
             times[kind].append((time.perf_counter() - start) / repeats)
     written_rows, all_rows = statistics.median(times["rows"]), statistics.median(times["all"])
-    print(f"EBP: first sample after a write of one episode ({rows} rows) into {len(storage):,}: {written_rows * 1e3:.2f} ms "
+    print(f"EBP: first sample after a write of one episode ({rows} rows) into {len(storage):,}: "
+          f"{written_rows * 1e3:.2f} ms "
           f"reading the written rows, {all_rows * 1e3:.2f} ms reading all rows ({all_rows / written_rows:.1f}x; "
           f"x50 writes per iteration: {written_rows * 50:.2f} s against {all_rows * 50:.2f} s)")
 

@@ -47,11 +47,13 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2, help="joblib jobs at once")
     args = parser.parse_args()
     jobs = len(args.algos) * len(args.seeds)
-    print(f"fig5_reach reduced to {jobs} jobs ({', '.join(args.algos)} x seeds {args.seeds}), {args.iterations} iterations each")
+    print(f"fig5_reach reduced to {jobs} jobs ({', '.join(args.algos)} x seeds {args.seeds}), "
+          f"{args.iterations} iterations each")
     with tempfile.TemporaryDirectory() as tmp:
         basic = sweep_seconds([], Path(tmp) / "basic", args)
         print(f"basic launcher:           {basic:7.1f} s", flush=True)
-        parallel = sweep_seconds(["hydra/launcher=joblib", f"hydra.launcher.n_jobs={args.jobs}"], Path(tmp) / "joblib", args)
+        parallel = sweep_seconds(["hydra/launcher=joblib", f"hydra.launcher.n_jobs={args.jobs}"],
+                                 Path(tmp) / "joblib", args)
         print(f"joblib, {args.jobs} jobs at once: {parallel:7.1f} s")
     print(f"joblib / basic = {parallel / basic:.2f} (target <= 0.6)")
 

@@ -67,7 +67,8 @@ def load_buffer(run: Path, iteration: int, capacity: int) -> LazyTensorStorage:
     files = sorted((run / "replay").glob("iteration-*.pt"))
     files = [f for f in files if int(f.stem.split("-")[1]) <= iteration]
     if not files or int(files[-1].stem.split("-")[1]) != iteration:
-        raise SystemExit(f"{run / 'replay'} has no file for iteration {iteration} (it holds {len(files)} files up to it)")
+        raise SystemExit(f"{run / 'replay'} has no file for iteration {iteration} "
+                         f"(it holds {len(files)} files up to it)")
     storage = LazyTensorStorage(capacity)
     for path in files:
         saved = checkpoint.load(path)
@@ -145,13 +146,15 @@ def main() -> None:
     start_height = None if geometry.object_range is None else float(geometry.object_range.center[2])
     g = cfg.graph
     metric = make_metric(
-        cfg.algo.metric, geometry.field, geometry.obstacles, n=tuple(g.n), margin=g.margin, snap=g.snap, cache_dir=g.cache_dir
+        cfg.algo.metric, geometry.field, geometry.obstacles, n=tuple(g.n), margin=g.margin, snap=g.snap,
+        cache_dir=g.cache_dir,
     )
     capacity = cfg.buffer.episodes * (cfg.her.k + 1) * geometry.episode_length
     candidates = cfg.curriculum.num_candidates
     best = torch.randn(100_000, candidates, generator=torch.Generator().manual_seed(0)).amax(1).mean().item()
     lines = [
-        f"`{'/'.join(args.run.parts[-3:])}` ({cfg.env.name}, algo={cfg.algo.name}, metric={cfg.algo.metric}): {args.samples} batches "
+        f"`{'/'.join(args.run.parts[-3:])}` ({cfg.env.name}, algo={cfg.algo.name}, metric={cfg.algo.metric}): "
+        f"{args.samples} batches "
         f"of {cfg.train.batch_size} per sampler; curriculum = best of {candidates} "
         f"(the largest of {candidates} standard normal draws averages {best:.2f})",
         "",

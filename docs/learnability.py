@@ -99,7 +99,8 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--tasks", nargs="+", default=["push_new", "pick_no_obstacle", "pick_obstacle"])
     parser.add_argument("--out", type=Path, help="also write the table into this Markdown file")
-    parser.add_argument("--starts", action="store_true", help="print where the authors' joint angles put this arm's grip")
+    parser.add_argument("--starts", action="store_true",
+                        help="print where the authors' joint angles put this arm's grip")
     args = parser.parse_args()
     if args.starts:
         starts()

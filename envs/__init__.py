@@ -29,7 +29,8 @@ def episode_seeds(seed: int, episodes: int, num_envs: int = 100) -> list[int]:
     seeded ``seed + b`` (as ``gchgg.evaluate`` runs them): a standalone controller that runs episode
     ``j`` with ``envs.load(name, seed=episode_seeds(seed, N)[j])`` sees the same goals and objects.
 
-    >>> episode_seeds(0, 3, num_envs=2)[:2] == task_seeds(0, 2), episode_seeds(0, 3, num_envs=2)[2] == task_seeds(1, 1)[0]
+    >>> (episode_seeds(0, 3, num_envs=2)[:2] == task_seeds(0, 2),
+    ...  episode_seeds(0, 3, num_envs=2)[2] == task_seeds(1, 1)[0])
     (True, True)
     """
     out = []

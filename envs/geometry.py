@@ -20,11 +20,11 @@ class Box(NamedTuple):
 
     @property
     def low(self) -> tuple[float, float, float]:
-        return tuple(c - h for c, h in zip(self.center, self.half))
+        return tuple(c - h for c, h in zip(self.center, self.half, strict=True))
 
     @property
     def high(self) -> tuple[float, float, float]:
-        return tuple(c + h for c, h in zip(self.center, self.half))
+        return tuple(c + h for c, h in zip(self.center, self.half, strict=True))
 
 
 @dataclass(frozen=True)

@@ -94,7 +94,7 @@ class KukaEnv(EnvBase):
         self.state_spec = Composite(state, shape=(n,))
 
     def _set_seed(self, seed: int | None) -> None:
-        for task, task_seed in zip(self._tasks, task_seeds(seed, self.num_envs)):
+        for task, task_seed in zip(self._tasks, task_seeds(seed, self.num_envs), strict=True):
             task.random.seed(task_seed)  # in place: the same stream as RandomState(task_seed)
 
     # -- reset ------------------------------------------------------------------------------------
@@ -149,7 +149,7 @@ class KukaEnv(EnvBase):
             raise ValueError(f"action must have shape [{self.num_envs}, {self.action_dim}] "
                              f"(num_envs, action size of {self.task_name!r}), got {list(action.shape)}")
         actions = action.detach().cpu().numpy().astype(np.float64)
-        for i, (physics, task) in enumerate(zip(self._physics, self._tasks)):
+        for i, (physics, task) in enumerate(zip(self._physics, self._tasks, strict=True)):
             task.before_step(actions[i], physics)
             physics.step(self._n_sub_steps)
             task.observe_into(physics, self._observation[i], self._achieved[i])
@@ -245,7 +245,7 @@ class KukaEnv(EnvBase):
         """Restore :meth:`random_state`'s output, so the next resets draw what they would have drawn."""
         if len(states) != self.num_envs:
             raise ValueError(f"random state holds {len(states)} tasks' states, this env has num_envs={self.num_envs}")
-        for task, state in zip(self._tasks, states):
+        for task, state in zip(self._tasks, states, strict=True):
             task.random.set_state(state)
 
     @property

@@ -80,7 +80,8 @@ class PointMaze(EnvBase):
         super().__init__(batch_size=torch.Size([num_envs]))
         shape = (num_envs, 2)
         self.observation_spec = Composite(
-            observation=Unbounded(shape), achieved_goal=Unbounded(shape), desired_goal=Unbounded(shape), shape=(num_envs,)
+            observation=Unbounded(shape), achieved_goal=Unbounded(shape), desired_goal=Unbounded(shape),
+            shape=(num_envs,),
         )
         self.action_spec = Bounded(-1.0, 1.0, shape)
         self.reward_spec = Unbounded((num_envs, 1))
@@ -102,7 +103,9 @@ class PointMaze(EnvBase):
         if tensordict is not None and "_reset" in tensordict.keys():
             reset = tensordict["_reset"].reshape(self.batch_size)
         count = int(reset.sum())
-        self.position[reset], self.goal[reset], self.steps[reset] = self._free_points(count), self._free_points(count), 0
+        self.position[reset], self.goal[reset], self.steps[reset] = (
+            self._free_points(count), self._free_points(count), 0
+        )
         out = self._observe()
         out.update(self.full_done_spec.zero())
         return out
@@ -128,7 +131,8 @@ class GoalMLP(nn.Module):
 
     def __init__(self, inputs: int, outputs: int, squash: bool, hidden: int = 64) -> None:
         super().__init__()
-        layers = [nn.Linear(inputs, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, outputs)]
+        layers = [nn.Linear(inputs, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+                  nn.Linear(hidden, outputs)]
         self.net = nn.Sequential(*layers, *([nn.Tanh()] if squash else []))
 
     def forward(self, *parts: torch.Tensor) -> torch.Tensor:
@@ -167,7 +171,8 @@ def train(frames: int = 16_000, seed: int = 0, updates_per_frame: float = 0.25, 
     num_envs = 16
     actor_net, critic_net = GoalMLP(4, 2, squash=True), GoalMLP(6, 1, squash=False)
     actor = TensorDictModule(actor_net, in_keys=["observation", "desired_goal"], out_keys=["action"])
-    critic = TensorDictModule(critic_net, in_keys=["observation", "desired_goal", "action"], out_keys=["state_action_value"])
+    critic = TensorDictModule(critic_net, in_keys=["observation", "desired_goal", "action"],
+                              out_keys=["state_action_value"])
     explore = TensorDictModule(Explore(actor_net, torch.Generator().manual_seed(seed + 1)),
                                in_keys=["observation", "desired_goal"], out_keys=["action"])
     loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)

@@ -49,7 +49,8 @@ def load_policy(path: Path):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("policy", type=Path, help="an exported .onnx or TorchScript .pt file (with FILE.json beside it)")
+    parser.add_argument("policy", type=Path,
+                        help="an exported .onnx or TorchScript .pt file (with FILE.json beside it)")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
@@ -76,7 +77,8 @@ def main() -> None:
     period = 1.0 / meta["control_rate_hz"]
     latency = float(np.median(latencies))
     print(f"{task}: success rate {rate:.3f} over {args.episodes} episodes (seed {args.seed}); policy latency "
-          f"{latency * 1e3:.3f} ms per step (median), {100 * latency / period:.2f} % of the {period * 1e3:.0f} ms period")
+          f"{latency * 1e3:.3f} ms per step (median), {100 * latency / period:.2f} % of the "
+          f"{period * 1e3:.0f} ms period")
 
 
 if __name__ == "__main__":

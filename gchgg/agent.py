@@ -476,7 +476,8 @@ class DDPGConfig:
 
     def __post_init__(self) -> None:
         hidden = tuple(self.hidden)
-        if not hidden or not all(isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1 for h in hidden):
+        if not hidden or not all(isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1
+                                 for h in hidden):
             raise ValueError(f"hidden must be a non-empty sequence of positive layer widths, got {self.hidden!r}")
         object.__setattr__(self, "hidden", hidden)
         for name in ("actor_lr", "critic_lr", "norm_std_min", "norm_clip"):
@@ -729,14 +730,15 @@ class DDPGAgent:
         self.num_updates += 1
         if self.num_updates % self.target_update_every == 0:
             self.loss_module.update_targets(self.polyak)
-        return dict(zip(("loss_actor", "loss_value", "pred_value", "target_value"), values))
+        return dict(zip(("loss_actor", "loss_value", "pred_value", "target_value"), values, strict=True))
 
     # -- checkpointing --------------------------------------------------------------------------
 
     def policy_state(self) -> dict[str, Any]:
         """What acting needs, and nothing else: the sizes and the online actor's weights and
         normalisers (a copy). :func:`load_policy` turns it back into an actor."""
-        hparams = {k: self.hparams[k] for k in ("obs_dim", "goal_dim", "action_dim", "hidden", "norm_std_min", "norm_clip")}
+        hparams = {k: self.hparams[k]
+                   for k in ("obs_dim", "goal_dim", "action_dim", "hidden", "norm_std_min", "norm_clip")}
         return {"hparams": hparams, "actor": {k: v.detach().clone() for k, v in self.actor.state_dict().items()}}
 
     def state_dict(self) -> dict[str, Any]:

@@ -25,8 +25,8 @@ from gchgg.samplers import (
     GraphCurriculumSampler,
 )
 from gchgg.samplers.curriculum import SCALES
-from gchgg.validation import check_choice, check_number
 from gchgg.transforms import DEFAULT_DROP_KEYS, EpisodeEnergy, GoalToNext, HindsightRelabel, ObservationNoise
+from gchgg.validation import check_choice, check_number
 
 METRICS = ("euclidean", "graph")
 SAMPLERS = ("uniform", "ebp", "curriculum", "cher")
@@ -66,7 +66,8 @@ def make_metric(
     if kind == "euclidean":
         return EuclideanMetric()
     check_density_criterion(field, obstacles, n, margin)  # eq. 12, before the (long) build
-    return GoalGraph(field, obstacles, n, margin, snap=snap, cache_dir=USER_CACHE_DIR if cache_dir is None else cache_dir)
+    return GoalGraph(field, obstacles, n, margin, snap=snap,
+                     cache_dir=USER_CACHE_DIR if cache_dir is None else cache_dir)
 
 
 def make_tradeoff(

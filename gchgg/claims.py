@@ -102,7 +102,8 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
         where = f"{path}: claim {entry.get('id', f'#{number + 1}')}"
         missing = [k for k in ("id", "task", "kind", "groups", "claim", "paper") if k not in entry]
         if missing:
-            raise ValueError(f"{where}: no {', '.join(missing)}; every claim needs id, task, kind, groups, claim, paper")
+            raise ValueError(f"{where}: no {', '.join(missing)}; "
+                             "every claim needs id, task, kind, groups, claim, paper")
         kind = entry["kind"]
         if kind not in KINDS:
             raise ValueError(f"{where}: kind {kind!r}; allowed: {', '.join(KINDS)}")
@@ -147,8 +148,9 @@ def measure(results: str | Path, task: str) -> tuple[dict[str, plot.Scores], dic
     scores, finals = {}, {}
     for (_, label), runs in groups.items():
         s = scores[label] = group_scores[task, label]
-        at_end = np.array([r.column("success_rate")[:b][-1] for r, b in zip(runs, s.budgets)])
-        stopped = sum(not c and int(r.rows[-1]["iteration"]) + 1 < b for r, c, b in zip(runs, s.censored, s.budgets))
+        at_end = np.array([r.column("success_rate")[:b][-1] for r, b in zip(runs, s.budgets, strict=True)])
+        stopped = sum(not c and int(r.rows[-1]["iteration"]) + 1 < b
+                      for r, c, b in zip(runs, s.censored, s.budgets, strict=True))
         finals[label] = (at_end, stopped, max(s.budgets) - 1)
     return scores, finals
 
@@ -225,7 +227,8 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
         return Row(claim, f"{first_text}; {claim.than}: 0 runs", "undecided", few, True)
     poi = stats.poi_interval(mine.first_bound, other.first_bound, lower_is_better=True, x_censored=mine.censored,
                              y_censored=other.censored)
-    text = f"P({claim.group} beats {claim.than}) on first ≥ {plot.THRESHOLD}: {poi.format(2)}; {mine.runs} vs {other.runs} runs"
+    text = (f"P({claim.group} beats {claim.than}) on first ≥ {plot.THRESHOLD}: {poi.format(2)}; "
+            f"{mine.runs} vs {other.runs} runs")
     if few:
         return Row(claim, text, "undecided", few, True)
     if poi.low > 0.5:
@@ -280,7 +283,8 @@ def render(rows: Sequence[Row], command: str, min_runs: int = 3, slack: float = 
     ]
     for r in rows:
         verdict = f"**{r.verdict}**" + (f": {r.reason}" if r.reason else "")
-        lines.append(f"| {r.claim.id} | {cell(r.claim.claim)} | {cell(r.claim.paper)} | {cell(r.measured)} | {cell(verdict)} |")
+        lines.append(f"| {r.claim.id} | {cell(r.claim.claim)} | {cell(r.claim.paper)} | {cell(r.measured)} "
+                     f"| {cell(verdict)} |")
     lines += ["", "Verdicts:", "", *summary(rows), ""]
     return "\n".join(lines)
 

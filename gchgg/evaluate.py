@@ -101,7 +101,9 @@ def evaluate_policy(
         n = min(num_envs, episodes - done)
         env = envs.make(task, num_envs=n, seed=seed + batch, threshold=threshold, start=start)
         if noise_std:
-            env = TransformedEnv(env, make_observation_noise(envs.observation_layout(task), env.has_object, noise_std, generator))
+            env = TransformedEnv(
+                env, make_observation_noise(envs.observation_layout(task), env.has_object, noise_std, generator)
+            )
         with torch.inference_mode():
             rollout = collect(env, actor, env.geometry.episode_length, env.reset())
         successes.append(rollout["next", "is_success"][:, -1].reshape(-1))

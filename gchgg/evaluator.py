@@ -47,7 +47,8 @@ class BackgroundEvaluator:
     """
 
     def __init__(
-        self, build_env: Callable[[], tuple[Any, torch.Generator | None]], steps: int, threads: int, matmul: str = "auto"
+        self, build_env: Callable[[], tuple[Any, torch.Generator | None]], steps: int, threads: int,
+        matmul: str = "auto",
     ) -> None:
         context = multiprocessing.get_context("spawn")  # no fork of a process holding MuJoCo and OpenMP state
         self._requests, self._results = context.Queue(), context.Queue()

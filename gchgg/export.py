@@ -45,7 +45,9 @@ def metadata(saved: dict, source: str, fmt: str) -> dict:
 
     task, hparams = saved["task"], saved["policy"]["hparams"]
     layout = envs.observation_layout(task)
-    action = ["grip dx", "grip dy", "grip dz"] + (["gripper (+1 open, -1 closed)"] if hparams["action_dim"] == 4 else [])
+    action = ["grip dx", "grip dy", "grip dz"] + (
+        ["gripper (+1 open, -1 closed)"] if hparams["action_dim"] == 4 else []
+    )
     return {
         "task": task,
         "format": fmt,

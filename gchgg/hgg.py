@@ -319,7 +319,8 @@ class HGGGoalGenerator:
     ) -> None:
         if not isinstance(metric, Metric):
             raise TypeError(
-                f"metric must be a gchgg.graph.Metric (distance(a, b) and lattice: GoalGraph, EuclideanMetric), got {metric!r}"
+                "metric must be a gchgg.graph.Metric (distance(a, b) and lattice: GoalGraph, EuclideanMetric), "
+                f"got {metric!r}"
             )
         if value_fn is not None and not callable(value_fn):
             raise TypeError(f"value_fn must be callable value(observation, goal) -> [B], got {value_fn!r}")
@@ -423,7 +424,8 @@ class HGGGoalGenerator:
         goal_distance = torch.zeros(k, device=device)
         goal_distance[rows_t] = distance[rows_t, columns_t, chosen_step[rows_t]]
         from_pool = bool(matched.all())
-        return self._result(goals, matched, trajectory, chosen_step, goal_cost, goal_distance, targets, from_pool, timings, start)
+        return self._result(goals, matched, trajectory, chosen_step, goal_cost, goal_distance, targets, from_pool,
+                            timings, start)
 
     def state_dict(self) -> dict[str, Any]:
         """Pool contents and the stop flag (for checkpoints)."""
@@ -510,9 +512,12 @@ class HGGGoalGenerator:
         none = torch.full((k,), -1, dtype=torch.long, device=targets.device)
         zeros = torch.zeros(k, device=targets.device)
         unmatched = torch.zeros(k, dtype=torch.bool, device=targets.device)
-        return self._result(targets.clone(), unmatched, none, none.clone(), zeros, zeros.clone(), targets, False, {}, start)
+        return self._result(targets.clone(), unmatched, none, none.clone(), zeros, zeros.clone(), targets, False, {},
+                            start)
 
-    def _result(self, goals, matched, trajectory, step, cost, distance, targets, from_pool, timings, start) -> GoalGeneration:
+    def _result(
+        self, goals, matched, trajectory, step, cost, distance, targets, from_pool, timings, start
+    ) -> GoalGeneration:
         near = _euclidean(goals, targets) <= self.success_threshold  # Euclidean, as the success test
         inside = int(near.any(dim=1).sum()) / goals.shape[0]  # exact fraction: 15 / 50 == 0.3
         if from_pool and self.stop_threshold is not None and inside > self.stop_threshold and not self.stopped:

@@ -43,8 +43,9 @@ rows the hidden layers gain, at 256 every product of the input and hidden layers
 MIN_FEATURES = 16
 """Layers narrower than this on either side (the 1–4-wide output layers) stay on ``F.linear``: their
 products are too thin for oneDNN to gain (``benchmarks/linear.py``: 0.5–0.7× at 256 rows). The
-input layers (observation, goal and, in the critic, action: 31 features on push_new) gain at 256 rows, and so does the whole update with them on
-oneDNN (``benchmarks/agent_update.py --min-features 64`` times it with the hidden layers alone)."""
+input layers (observation, goal and, in the critic, action: 31 features on push_new) gain at 256
+rows, and so does the whole update with them on oneDNN (``benchmarks/agent_update.py --min-features 64``
+times it with the hidden layers alone)."""
 
 
 PRECISIONS = ("float32", "bfloat16")
@@ -95,7 +96,9 @@ class _OneDNNLinearFunction(torch.autograd.Function):
     in the product dtype given (the backward uses the forward's)."""
 
     @staticmethod
-    def forward(ctx, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
+    def forward(
+        ctx, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, dtype: torch.dtype
+    ) -> torch.Tensor:
         if dtype != torch.float32:  # round once; the backward reuses the rounded copies
             x, weight = x.to(dtype), weight.to(dtype)
         ctx.save_for_backward(x, weight)

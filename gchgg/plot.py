@@ -180,7 +180,8 @@ def group_runs(runs: Sequence[Run]) -> dict[tuple[str, str], list[Run]]:
             differing = [k for k in differing if k not in implied]
         for run in members:
             if run.settings:
-                label = ", ".join(f"{k}={run.settings.get(k)}" for k in differing) or run.settings.get("algo.name", "run")
+                label = (", ".join(f"{k}={run.settings.get(k)}" for k in differing)
+                         or run.settings.get("algo.name", "run"))
                 label = label.replace("algo.name=", "")
             else:
                 label = run.label
@@ -228,7 +229,7 @@ def first_at(run: Run, threshold: float, column: str = "success_rate") -> float:
     return math.inf
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _fig5_budget(task: str) -> int | None:
     """``train.iterations`` of ``conf/experiment/fig5_<task>.yaml`` (None if there is no such file)."""
     path = _EXPERIMENTS / f"fig5_{task}.yaml"
@@ -295,7 +296,7 @@ class Scores:
     @property
     def censored_at(self) -> list[int]:
         """The iteration each censored run is censored at (its count in ``first`` less 1)."""
-        return [int(f) - 1 for f, c in zip(self.first, self.censored) if c]
+        return [int(f) - 1 for f, c in zip(self.first, self.censored, strict=True) if c]
 
     @property
     def first_bound(self) -> np.ndarray:
@@ -315,7 +316,7 @@ class Scores:
 def auc_range(runs: Sequence[Run], budgets: Sequence[int], censored: Sequence[bool]) -> int:
     """The AUC's common range R for ``runs`` (those of the groups compared on one task): the smallest of
     their ``budgets``, or the length (last iteration + 1) of their shortest ``censored`` run if shorter."""
-    ends = [int(r.rows[-1]["iteration"]) + 1 for r, c in zip(runs, censored) if c]
+    ends = [int(r.rows[-1]["iteration"]) + 1 for r, c in zip(runs, censored, strict=True) if c]
     return min([*budgets, *ends])
 
 
@@ -359,7 +360,8 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
     labels = {label for _, label in groups}
     for name in (first, second):
         if name not in labels:
-            raise ValueError(f"--compare {first} {second}: no group {name!r}; the groups are {', '.join(sorted(labels))}")
+            raise ValueError(f"--compare {first} {second}: no group {name!r}; "
+                             f"the groups are {', '.join(sorted(labels))}")
     lines = []
     for task in sorted({task for task, _ in groups}):
         if (task, first) not in groups or (task, second) not in groups:
@@ -430,7 +432,7 @@ def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100
         stops = [first_at(r, 1.0, "stopped") for r in generated]
         cells.append(f"{_fmt(iqr(stops))}" if stops else "—")
         # after the stop every HGG variant trains on target goals with plain sampling: how long that took
-        after = [first_at(r, 0.9) - stop for r, stop in zip(generated, stops) if math.isfinite(stop)]
+        after = [first_at(r, 0.9) - stop for r, stop in zip(generated, stops, strict=True) if math.isfinite(stop)]
         cells.append(f"{_fmt(iqr(after))}" if after else "—")
         decided = [_while_curriculum(r, "diversity_decided") for r in runs if "diversity_decided" in r.rows[-1]]
         cells.append(f"{np.mean(decided):.2f}" if decided else "—")
@@ -448,7 +450,9 @@ def _while_curriculum(run: Run, column: str) -> float:
     return float(np.nanmean(values)) if len(values) else math.nan
 
 
-def plot(groups: dict[tuple[str, str], list[Run]], out: str | Path, column: str | Sequence[str] = "success_rate") -> None:
+def plot(
+    groups: dict[tuple[str, str], list[Run]], out: str | Path, column: str | Sequence[str] = "success_rate"
+) -> None:
     """One panel per task and column: median and interquartile band of the column per group against iteration."""
     import matplotlib
 
@@ -458,8 +462,8 @@ def plot(groups: dict[tuple[str, str], list[Run]], out: str | Path, column: str 
     columns = _as_list(column)
     tasks = sorted({task for task, _ in groups})
     fig, axes = plt.subplots(len(columns), len(tasks), figsize=(5.5 * len(tasks), 4 * len(columns)), squeeze=False)
-    for row, name in zip(axes, columns):
-        for ax, task in zip(row, tasks):
+    for row, name in zip(axes, columns, strict=True):
+        for ax, task in zip(row, tasks, strict=True):
             for (t, label), runs in sorted(groups.items()):
                 if t != task:
                     continue
@@ -493,7 +497,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="the AUC is the mean success over iterations 0 ... R-1; default: the smallest budget of "
                              "the compared runs, or their shortest censored run's length if shorter")
     parser.add_argument("--compare", nargs=2, metavar=("A", "B"),
-                        help="print P(a run of group A beats one of group B) per task, on both scores, instead of the table")
+                        help="print P(a run of group A beats one of group B) per task, on both scores, "
+                             "instead of the table")
     args = parser.parse_args(argv)
     if args.budget is not None and args.budget < 1:
         parser.error(f"--budget {args.budget}: a budget is a number of iterations, allowed: 1 or more")

@@ -74,7 +74,8 @@ def _matrix(scores, name: str) -> np.ndarray:
     if array.shape[0] == 0 or array.shape[1] == 0:
         raise ValueError(f"{name}: no runs (scores of shape {array.shape}); an estimate needs at least one run")
     if np.isnan(array).any():
-        raise ValueError(f"{name}: a score is NaN; every run needs a score (count a censored run at its last iteration)")
+        raise ValueError(f"{name}: a score is NaN; every run needs a score "
+                         "(count a censored run at its last iteration)")
     return array
 
 
@@ -141,7 +142,8 @@ def _censored(mask, shape: tuple[int, int], name: str) -> np.ndarray:
     array = np.asarray(mask, dtype=bool)
     array = array[:, None] if array.ndim == 1 else array
     if array.shape != shape:
-        raise ValueError(f"{name}: a mask of shape {array.shape} for scores of shape {shape}; allowed: the scores' shape")
+        raise ValueError(f"{name}: a mask of shape {array.shape} for scores of shape {shape}; "
+                         "allowed: the scores' shape")
     return array
 
 
@@ -157,7 +159,8 @@ def _poi(x: np.ndarray, y: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> np.nda
 def _oriented(x, y, lower_is_better, x_censored, y_censored, name):
     x, y = _matrix(x, f"{name} (first group)"), _matrix(y, f"{name} (second group)")
     if x.shape[1] != y.shape[1]:
-        raise ValueError(f"{name}: {x.shape[1]} tasks in the first group, {y.shape[1]} in the second; allowed: the same tasks")
+        raise ValueError(f"{name}: {x.shape[1]} tasks in the first group, {y.shape[1]} in the second; "
+                         "allowed: the same tasks")
     cx = _censored(x_censored, x.shape, f"{name} x_censored")
     cy = _censored(y_censored, y.shape, f"{name} y_censored")
     sign = -1.0 if lower_is_better else 1.0

@@ -49,9 +49,9 @@ from gchgg import checkpoint, fork, loggers  # noqa: E402
 from gchgg.agent import DDPGAgent, DDPGConfig  # noqa: E402
 from gchgg.builders import (  # noqa: E402
     check_positive,
-    make_observation_noise,
     make_goal_generator,
     make_metric,
+    make_observation_noise,
     make_relabel,
     make_replay_buffer,
     make_sampler,
@@ -204,7 +204,8 @@ class Trainer:
         )
         copies = cfg.her.k + 1
         self.buffer = make_replay_buffer(
-            cfg.buffer.episodes, copies * self.steps, self.sampler, batch_size=cfg.train.batch_size, generator=buffer_rng
+            cfg.buffer.episodes, copies * self.steps, self.sampler, batch_size=cfg.train.batch_size,
+            generator=buffer_rng,
         )
         self.replay_log = ReplayLog(run_dir / REPLAY, cfg.buffer.episodes * copies * self.steps)
         self.relabel = make_relabel(
@@ -538,14 +539,16 @@ class Trainer:
                 tick = time.perf_counter()
                 self.history.append(row)
                 self.collect_evaluations()
-                if self.iteration % cfg.checkpoint.every == 0 or self.iteration == cfg.train.iterations or self.reached_stop():
+                if (self.iteration % cfg.checkpoint.every == 0 or self.iteration == cfg.train.iterations
+                        or self.reached_stop()):
                     self.collect_evaluations(wait=self.iteration == cfg.train.iterations)  # the last one: complete
                     self.save()
                     saved_at = self.iteration
                 row["seconds_checkpoint"] = time.perf_counter() - tick  # in the CSV; in the next checkpoint
                 self.write_metrics()
                 self.log_rows(trackers)
-                postfix = {"success": f"{row.get('success_rate', math.nan):.2f}", "train": f"{row['train_success_rate']:.2f}"}
+                postfix = {"success": f"{row.get('success_rate', math.nan):.2f}",
+                           "train": f"{row['train_success_rate']:.2f}"}
                 postfix.update({key: f"{row[key]:.3g}" for key in ("lambda", "d_g") if key in row})
                 bar.set_postfix(postfix)
                 bar.update(1)
@@ -630,7 +633,7 @@ class _IterationStats:
         }
         if self.off_table:
             row["object_off_table"] = fraction(torch.cat(self.off_table))
-            row.update(zip(self.MOTION, fraction(torch.cat(self.motion), dim=0)))
+            row.update(zip(self.MOTION, fraction(torch.cat(self.motion), dim=0), strict=True))
         row.update({key: float(np.mean(values)) for key, values in self.losses.items()})
         if self.clipped:
             observation, goal = torch.stack(self.clipped).mean(0).tolist()
@@ -679,8 +682,10 @@ def versions() -> dict[str, str]:
             out[package] = "not installed"
     try:  # the commit of the checkout the code runs from, "+dirty" with uncommitted changes
         git = ["git", "-C", str(CONF_DIR.parent)]
-        commit = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout
-        dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True).stdout
+        commit = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                check=True).stdout
+        dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                               text=True).stdout
         out["commit"] = commit.strip() + ("+dirty" if dirty.strip() else "")
     except (OSError, subprocess.CalledProcessError):
         out["commit"] = "unknown (not a git checkout)"

@@ -314,14 +314,15 @@ def test_state_dict_round_trip_gives_identical_subsequent_updates():
         norm_batch = make_batch(8, seed=1000 + step)
         agent.update_normalizer(norm_batch["observation"], norm_batch["desired_goal"])
         resumed.update_normalizer(norm_batch["observation"], norm_batch["desired_goal"])
-    for (key, a), b in zip(all_parameters(agent).items(), all_parameters(resumed).values()):
+    for (key, a), b in zip(all_parameters(agent).items(), all_parameters(resumed).values(), strict=True):
         assert torch.equal(a, b), key
     batch = make_batch()
     assert torch.equal(agent.value(batch["observation"], batch["desired_goal"]),
                        resumed.value(batch["observation"], batch["desired_goal"]))  # fmt: skip
     # the resumed target networks share the online normalisers' statistics (loaded in place)
     loss = resumed.loss_module
-    assert loss.target_critic.observation_normalizer.mean.data_ptr() == loss.actor.observation_normalizer.mean.data_ptr()
+    assert (loss.target_critic.observation_normalizer.mean.data_ptr()
+            == loss.actor.observation_normalizer.mean.data_ptr())
 
 
 def test_agent_loads_checkpoints_written_while_the_loss_subclassed_ddpg_loss():
@@ -338,7 +339,7 @@ def test_agent_loads_checkpoints_written_while_the_loss_subclassed_ddpg_loss():
         old_networks[old_prefixes[prefix] + key[len(prefix):]] = value
     resumed = make_agent(seed=5)
     resumed.load_state_dict(state | {"networks": old_networks})
-    for (key, a), b in zip(all_parameters(agent).items(), all_parameters(resumed).values()):
+    for (key, a), b in zip(all_parameters(agent).items(), all_parameters(resumed).values(), strict=True):
         assert torch.equal(a, b), key
 
 

@@ -29,13 +29,15 @@ claims:
   - {id: by-fast, task: toy, kind: reaches_by, groups: [fast], by: 5, claim: "{name} by 5", paper: "5"}
   - {id: by-slow, task: toy, kind: reaches_by, groups: [slow], by: 5, claim: "{name} by 5", paper: "5"}
   - {id: by-mixed, task: toy, kind: reaches_by, groups: [mixed], by: 10, claim: "{name} by 10", paper: "10"}
-  - {id: fails, task: toy, kind: fails, groups: [never, fast, few, absent], within: 20, claim: "{name} fails", paper: "-"}
+  - {id: fails, task: toy, kind: fails, groups: [never, fast, few, absent], within: 20, claim: "{name} fails",
+     paper: "-"}
   - {id: faster, task: toy, kind: faster, groups: [fast], than: [slow, fast], claim: "{name} beats {than}", paper: "x"}
   - {id: slower, task: toy, kind: faster, groups: [slow], than: fast, claim: "{name} beats {than}", paper: "x"}
   - {id: final-fast, task: toy, kind: final, groups: [fast], level: 1.0, spread: 0.0, claim: "1.0", paper: "1.0"}
   - {id: final-low, task: toy, kind: final, groups: [fast], level: 0.5, spread: 0.1, claim: "0.5", paper: "0.5"}
   - {id: final-never, task: toy, kind: final, groups: [never], level: 0.9, spread: 0.05, claim: "0.9", paper: "0.9"}
-  - {id: final-stopped, task: toy, kind: final, groups: [stopped], level: 0.99, spread: 0.01, claim: "0.99", paper: "0.99"}
+  - {id: final-stopped, task: toy, kind: final, groups: [stopped], level: 0.99, spread: 0.01, claim: "0.99",
+     paper: "0.99"}
   - {id: elsewhere, task: missing_task, kind: fails, groups: [fast], within: 20, claim: "-", paper: "-"}
 """
 
@@ -75,7 +77,8 @@ def test_each_rule_gives_its_verdict(results):
     assert verdicts["final-fast"] == ("holds", "CI inside [1.00, 1.00]")
     assert verdicts["final-low"] == ("contradicted", "CI above [0.40, 0.60]")
     assert verdicts["final-never"] == ("contradicted", "CI below [0.85, 0.95]")
-    assert verdicts["final-stopped"][0] == "undecided" and "3 of 3 runs were stopped by the stop rule" in verdicts["final-stopped"][1]
+    assert (verdicts["final-stopped"][0] == "undecided"
+            and "3 of 3 runs were stopped by the stop rule" in verdicts["final-stopped"][1])
     assert verdicts["elsewhere"] == ("undecided", "fast: 0 runs")
     assert rows["by-fast"].measured == "first ≥ 0.9 IQM 4.0 [3.0, 5.0]; 3 runs, 0 censored"
     assert rows["faster-slow"].measured == "P(fast beats slow) on first ≥ 0.9: 1.00 [1.00, 1.00]; 3 vs 3 runs"
@@ -88,7 +91,8 @@ def test_the_command_writes_the_table_and_its_verdict_lines(results, capsys):
     claims.main([str(results), "--out", str(out)])
     text = out.read_text()
     assert text == capsys.readouterr().out
-    assert "| by-fast | Fast by 5 | 5 | first ≥ 0.9 IQM 4.0 [3.0, 5.0]; 3 runs, 0 censored | **holds**: CI ≤ 5.5 (5 + 10 %) |" in text
+    assert ("| by-fast | Fast by 5 | 5 | first ≥ 0.9 IQM 4.0 [3.0, 5.0]; 3 runs, 0 censored "
+            "| **holds**: CI ≤ 5.5 (5 + 10 %) |") in text
     assert "- **contradicted** (5 of 15): toy: Slow by 5; Fast fails; Slow beats Fast; 0.5; 0.9\n" in text
 
 

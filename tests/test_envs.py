@@ -9,8 +9,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 import envs
-from envs import kuka, scripted
-from envs import task_seeds
+from envs import kuka, scripted, task_seeds
 
 TASKS = envs.TASKS
 OBJECT_TASKS = [name for name in TASKS if envs.geometry(name).object_range is not None]
@@ -129,7 +128,7 @@ def test_same_seed_and_actions_give_the_same_trajectory(name):
     actions = _random_actions(envs.make(name, num_envs=2), 30, seed=5)
     first = _rollout(envs.make(name, num_envs=2, seed=3), actions)
     second = _rollout(envs.make(name, num_envs=2, seed=3), actions)
-    for a, b in zip(first, second):
+    for a, b in zip(first, second, strict=True):
         assert (a == b).all()
     other = envs.make(name, num_envs=2, seed=4).reset()
     assert not torch.equal(other["desired_goal"], first[0]["desired_goal"])
@@ -143,7 +142,7 @@ def test_torchrl_env_reproduces_the_dm_control_env(name):
     dm_env = envs.load(name, seed=task_seeds(7, 2)[1])
     time_step = dm_env.reset()
     np.testing.assert_allclose(time_step.observation["desired_goal"], steps[0]["desired_goal"][1], atol=1e-6)
-    for action, step in zip(actions, steps):
+    for action, step in zip(actions, steps, strict=True):
         time_step = dm_env.step(action[1].double().numpy())
         np.testing.assert_allclose(time_step.observation["observation"], step["next", "observation"][1], atol=1e-5)
         assert time_step.reward == step["next", "reward"][1].item()
@@ -249,6 +248,9 @@ def test_rollout_with_a_tensor_policy_equals_the_torchrl_rollout(name, num_envs)
             return (torch.rand(len(observation), envs.make(name).action_dim, generator=generator) * 2 - 1) * scale
         return act
 
+    def as_policy(act):  # env.rollout's policy: a function of one argument named td (TorchRL reads the signature)
+        return lambda td: td.set("action", act(td["observation"], td["desired_goal"]))
+
     runs = []
     for fast in (False, True):
         env = envs.make(name, num_envs=num_envs, seed=4)
@@ -258,8 +260,8 @@ def test_rollout_with_a_tensor_policy_equals_the_torchrl_rollout(name, num_envs)
         if fast:
             rollout = env.rollout_with(act, steps, start.clone())
         else:
-            policy = lambda td: td.set("action", act(td["observation"], td["desired_goal"]))  # noqa: E731
-            rollout = env.rollout(steps, policy, tensordict=start.clone(), auto_reset=False, break_when_any_done=False)
+            rollout = env.rollout(steps, as_policy(act), tensordict=start.clone(), auto_reset=False,
+                                  break_when_any_done=False)
         after = env.step(TensorDict({"action": torch.zeros(num_envs, env.action_dim)}, [num_envs]))["next"]
         runs.append((rollout, after))
     (slow, slow_after), (fast, fast_after) = runs
@@ -321,7 +323,7 @@ def test_model_matches_the_task_geometry(name):
         assert top == pytest.approx(geom.table_height)
     walls = [n for n in names if n.startswith("wall")]
     assert len(walls) == len(geom.obstacles)
-    for wall, box in zip(walls, geom.obstacles):
+    for wall, box in zip(walls, geom.obstacles, strict=True):
         np.testing.assert_allclose(physics.named.model.geom_pos[wall], box.center)
         np.testing.assert_allclose(physics.named.model.geom_size[wall], box.half)
 
@@ -436,4 +438,5 @@ def test_named_observation_slices_match_the_physics_read_outs(name):
     assert set(expected) <= set(layout)
     for part, value in expected.items():
         np.testing.assert_allclose(observation[layout[part]], value, atol=1e-5, err_msg=part)
-    np.testing.assert_allclose(td["achieved_goal"][1].numpy(), expected.get("object_position", expected["grip_position"]), atol=1e-5)
+    np.testing.assert_allclose(td["achieved_goal"][1].numpy(),
+                               expected.get("object_position", expected["grip_position"]), atol=1e-5)

@@ -59,7 +59,7 @@ def test_a_sweep_runs_its_jobs_through_submitit_and_a_rerun_resumes_them(tmp_pat
     # A re-launched (or requeued) job finds its checkpoint and continues.
     done = sweep(tmp_path, iterations=2)
     assert done.returncode == 0, done.stderr[-2000:]
-    for path, before in zip(runs, first):
+    for path, before in zip(runs, first, strict=True):
         rows = list(csv.DictReader(open(path)))
         assert [r["iteration"] for r in rows] == ["0", "1"]
         assert rows[0]["success_rate"] == before[0]["success_rate"]
@@ -90,6 +90,8 @@ def test_evaluate_without_a_policy_or_a_renderer_says_what_to_do(tmp_path):
         load_policy_file(tmp_path)
     run_dir = tmp_path / "run"
     train.run(config(["env=reach", "algo=her", *tiny(tmp_path)]), run_dir)
-    command = [sys.executable, "-m", "gchgg.evaluate", str(run_dir), "--episodes", "1", "--video", str(tmp_path / "v.gif")]
-    done = subprocess.run(command, env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True, timeout=300)
+    command = [sys.executable, "-m", "gchgg.evaluate", str(run_dir), "--episodes", "1",
+               "--video", str(tmp_path / "v.gif")]
+    done = subprocess.run(command, env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True,
+                          timeout=300)
     assert done.returncode != 0 and "MUJOCO_GL" in done.stderr

@@ -37,7 +37,8 @@ def recorded_pairs(task: str, actor, n: int = 1000) -> tuple[torch.Tensor, torch
     env = envs.make(task, num_envs=10, seed=11)
     with torch.inference_mode():
         rollout = collect(env, actor, 100, env.reset())
-    return rollout["observation"].reshape(-1, env.obs_dim)[:n].clone(), rollout["desired_goal"].reshape(-1, 3)[:n].clone()
+    return (rollout["observation"].reshape(-1, env.obs_dim)[:n].clone(),
+            rollout["desired_goal"].reshape(-1, 3)[:n].clone())
 
 
 @pytest.mark.parametrize("fmt", export.FORMATS)
@@ -86,5 +87,6 @@ def test_runner_reproduces_evaluate_without_importing_gchgg(trained, tmp_path):
     assert "gchgg modules: []" in done.stdout
     rate = float(done.stdout.split("success rate ")[1].split()[0])
     saved = load_policy_file(trained)
-    reference = evaluate_policy(load_policy(saved["policy"]), "push_new", episodes=20, seed=3, threshold=saved["threshold"])
+    reference = evaluate_policy(load_policy(saved["policy"]), "push_new", episodes=20, seed=3,
+                                threshold=saved["threshold"])
     assert abs(rate - reference.success_rate) <= 0.02

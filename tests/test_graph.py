@@ -60,7 +60,7 @@ def reference_distances(field, obstacles, n, margin):
             position[ijk] = p
     for ijk in lattice.nodes:
         for step in itertools.product((-1, 0, 1), repeat=3):
-            other = tuple(a + s for a, s in zip(ijk, step))
+            other = tuple(a + s for a, s in zip(ijk, step, strict=True))
             if any(step) and other in position:
                 lattice.add_edge(ijk, other, weight=float(np.linalg.norm(np.asarray(step) * spacing)))
     return position, dict(nx.all_pairs_dijkstra_path_length(lattice))

@@ -111,8 +111,10 @@ def test_cost_matches_eq6_by_hand_and_the_matching_is_the_exact_optimum():
     def cost(j, i):
         terms = []
         for t in range(5):
-            v = max(min(value(observations[i : i + 1].double(), trajectories[i, t : t + 1].double()).item(), 0.0), -50.0)
-            terms.append(torch.dist(trajectories[i, t].double(), targets[j].double()).item() - v * max_dis * (1 - GAMMA) / L)
+            v = max(min(value(observations[i : i + 1].double(), trajectories[i, t : t + 1].double()).item(), 0.0),
+                    -50.0)
+            terms.append(torch.dist(trajectories[i, t].double(), targets[j].double()).item()
+                         - v * max_dis * (1 - GAMMA) / L)
         best = min(range(5), key=terms.__getitem__)
         return c * torch.dist(trajectories[i, 0].double(), initial[j].double()).item() + terms[best], best
 
@@ -127,7 +129,8 @@ def test_cost_matches_eq6_by_hand_and_the_matching_is_the_exact_optimum():
         assert result.cost[j].item() == pytest.approx(cost_ji, abs=1e-5)
         assert result.step_index[j].item() == step
         assert torch.equal(result.goals[j], trajectories[i, step])  # eq. 7: the argmin point
-        assert result.distance[j].item() == pytest.approx(torch.dist(trajectories[i, step], targets[j]).item(), abs=1e-6)
+        assert result.distance[j].item() == pytest.approx(torch.dist(trajectories[i, step], targets[j]).item(),
+                                                          abs=1e-6)
     assert result.d_g == pytest.approx(result.distance.double().mean().item())
     assert result.matched.all() and result.from_pool
 
@@ -137,7 +140,7 @@ def test_matched_trajectories_are_distinct_when_all_targets_want_the_same_one():
     starts = torch.zeros(20, 3)
     ends = torch.rand(20, 3, generator=g) * 0.5
     ends[7] = torch.tensor([1.0, 1.0, 1.0])  # the best trajectory for every target
-    trajectories = torch.stack([line(s.tolist(), e.tolist(), 6) for s, e in zip(starts, ends)])
+    trajectories = torch.stack([line(s.tolist(), e.tolist(), 6) for s, e in zip(starts, ends, strict=True)])
     targets = torch.tensor([1.0, 1.0, 1.0]) + 0.01 * torch.rand(10, 3, generator=g)
     result = generator_with(trajectories).generate(torch.zeros(10, 3), targets)
     chosen = result.trajectory_index.tolist()
@@ -179,11 +182,14 @@ def test_graph_metric_picks_the_way_around_the_wall_euclidean_the_dead_end(push_
     wall_group = torch.stack([polyline(start, (0.58 + 0.02 * k, 0.07, z)) for k in range(6)])
     around_group = torch.stack([polyline(start, (0.95, 0.25, z), (0.95 - 0.005 * k, -0.10, z)) for k in range(6)])
     # Same number of points per trajectory: pad the wall group by resting at its end.
-    wall_group = torch.cat([wall_group, wall_group[:, -1:].expand(-1, around_group.shape[1] - wall_group.shape[1], -1)], 1)
+    wall_group = torch.cat(
+        [wall_group, wall_group[:, -1:].expand(-1, around_group.shape[1] - wall_group.shape[1], -1)], 1
+    )
     trajectories = torch.cat([wall_group, around_group])  # indices 0-5 stop at the wall, 6-11 go around
     targets = torch.tensor([[0.58, -0.18, z], [0.62, -0.15, z], [0.66, -0.20, z], [0.60, -0.24, z]])
     initial = torch.tensor(start).expand(4, 3)
-    value = lambda s, goal: -0.5 * torch.rand(goal.shape[0], generator=g)  # noise of at most 1 cm
+    def value(s, goal):  # noise of at most 1 cm
+        return -0.5 * torch.rand(goal.shape[0], generator=g)
 
     euclidean = generator_with(trajectories, EuclideanMetric(), value_fn=value).generate(initial, targets)
     graph = generator_with(trajectories, push_graph, value_fn=value).generate(initial, targets)
@@ -218,8 +224,10 @@ def test_vertex_dedupe_gives_the_same_result_as_plain_distances(push_graph):
     g = torch.Generator().manual_seed(5)
     task = geometry("push_new")
     low, high = torch.tensor(task.field.low), torch.tensor(task.field.high)
-    trajectories = (low + (high - low) * torch.rand(40, 1, 3, generator=g)) + 0.02 * torch.randn(40, 9, 3, generator=g).cumsum(1)
-    initial, targets = torch.tensor(task.object_range.center).expand(12, 3), low + (high - low) * torch.rand(12, 3, generator=g)
+    trajectories = ((low + (high - low) * torch.rand(40, 1, 3, generator=g))
+                    + 0.02 * torch.randn(40, 9, 3, generator=g).cumsum(1))
+    initial, targets = (torch.tensor(task.object_range.center).expand(12, 3),
+                        low + (high - low) * torch.rand(12, 3, generator=g))
     keep = (trajectories[:, -1] - trajectories[:, 0]).norm(dim=-1) > 0.01
     by_vertex = generator_with(trajectories[keep], push_graph)
     plain = generator_with(trajectories[keep], DistanceOnly())
@@ -250,7 +258,7 @@ def stop_case(inside: int, k: int = 10):
     targets = torch.stack([torch.tensor([float(j), 0.0, 0.0]) for j in range(k)])
     ends = targets + torch.tensor([0.0, 0.3, 0.0]) * (torch.arange(k) >= inside)[:, None]
     starts = targets + torch.tensor([0.0, 0.5, 0.0])
-    trajectories = torch.stack([line(s.tolist(), e.tolist()) for s, e in zip(starts, ends)])
+    trajectories = torch.stack([line(s.tolist(), e.tolist()) for s, e in zip(starts, ends, strict=True)])
     return trajectories, starts, targets
 
 

@@ -78,7 +78,7 @@ def test_use_onednn_converts_wide_layers_in_place_and_back():
     keys = list(net.state_dict())
     use_onednn(net, "onednn")
     assert [type(m) for m in net if isinstance(m, nn.Linear)] == [OneDNNLinear, OneDNNLinear, nn.Linear]
-    assert all(a is b for a, b in zip(params, net.parameters()))  # optimisers keep working
+    assert all(a is b for a, b in zip(params, net.parameters(), strict=True))  # optimisers keep working
     assert list(net.state_dict()) == keys
     use_onednn(net, "default")
     assert all(type(m) is nn.Linear for m in net if isinstance(m, nn.Linear))
@@ -117,7 +117,8 @@ def test_agent_update_on_onednn_agrees_with_torch_blas_and_repeats_exactly():
     agents fed the same batches stay bit-identical (what exact resume needs)."""
     g = torch.Generator().manual_seed(0)
     batches = [_batch(g) for _ in range(3)]
-    agents = {m: DDPGAgent(25, 3, 3, generator=torch.Generator().manual_seed(1), matmul=m) for m in ("default", "onednn")}
+    agents = {m: DDPGAgent(25, 3, 3, generator=torch.Generator().manual_seed(1), matmul=m)
+              for m in ("default", "onednn")}
     assert any(isinstance(m, OneDNNLinear) for m in agents["onednn"].loss_module.modules())
     assert not any(isinstance(m, OneDNNLinear) for m in agents["default"].loss_module.modules())
     for agent in agents.values():
@@ -131,13 +132,13 @@ def test_agent_update_on_onednn_agrees_with_torch_blas_and_repeats_exactly():
         for p in loss.parameters():
             p.grad = None
     assert len(grads["default"]) == len(grads["onednn"]) == 16
-    for a, b in zip(grads["default"], grads["onednn"]):
+    for a, b in zip(grads["default"], grads["onednn"], strict=True):
         assert (a - b).abs().max() <= 1e-5 * a.abs().max()
 
     twin = copy.deepcopy(agents["onednn"])
     for batch in batches:
         assert agents["onednn"].update(batch) == twin.update(batch)
-    for a, b in zip(agents["onednn"].loss_module.parameters(), twin.loss_module.parameters()):
+    for a, b in zip(agents["onednn"].loss_module.parameters(), twin.loss_module.parameters(), strict=True):
         assert torch.equal(a, b)
 
 
@@ -185,5 +186,6 @@ def test_precision_setting_is_checked():
     with pytest.raises(ValueError, match="precision must be one of \\['float32', 'bfloat16'\\], got 'fp16'"):
         linear.resolve_precision("fp16")
     if linear.bf16_available():
-        with pytest.raises(ValueError, match="precision='bfloat16' computes the products with oneDNN, but matmul='default'"):
+        with pytest.raises(ValueError,
+                           match="precision='bfloat16' computes the products with oneDNN, but matmul='default'"):
             DDPGAgent(5, 3, 2, hidden=(32,), matmul="default", precision="bfloat16")

@@ -198,7 +198,8 @@ def test_normalizer_source(source, per_chunk, tmp_path):
 
 
 def test_training_stops_once_success_holds_for_the_patience(tmp_path, monkeypatch):
-    t = trainer(tmp_path, "train.iterations=10", "train.stop_success=0.5", "train.stop_patience=2", task="reach", algo="her")
+    t = trainer(tmp_path, "train.iterations=10", "train.stop_success=0.5", "train.stop_patience=2",
+                task="reach", algo="her")
     rates = iter([0.6, 0.2, 0.7, 0.9, 0.1, 0.1])
     monkeypatch.setattr(train, "evaluate", lambda *args: next(rates))
     rows = t.train()
@@ -208,7 +209,8 @@ def test_training_stops_once_success_holds_for_the_patience(tmp_path, monkeypatc
 def test_bad_loop_settings_name_themselves(tmp_path):
     with pytest.raises(ValueError, match="agent.normalizer_source must be one of 'sampled', 'collected', got 'batch'"):
         trainer(tmp_path, "agent.normalizer_source=batch")
-    with pytest.raises(ValueError, match=r"train.stop_success \(a success rate, or null\) must be a number in \[0, 1\], got 2"):
+    with pytest.raises(ValueError,
+                       match=r"train.stop_success \(a success rate, or null\) must be a number in \[0, 1\], got 2"):
         trainer(tmp_path, "train.stop_success=2")
     with pytest.raises(ValueError, match="curriculum.scale must be one of 'raw', 'standardized', got 'z'"):
         trainer(tmp_path, "curriculum.scale=z")

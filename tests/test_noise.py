@@ -33,7 +33,8 @@ def test_noise_statistics_on_the_chosen_slices_only():
 def test_noisy_env_keeps_reward_and_success_of_the_true_state():
     clean = envs.make("push_new", num_envs=8, seed=5)
     noisy = TransformedEnv(envs.make("push_new", num_envs=8, seed=5),
-                           ObservationNoise(0.02, [slice(3, 6), slice(6, 9)], generator=torch.Generator().manual_seed(1)))
+                           ObservationNoise(0.02, [slice(3, 6), slice(6, 9)],
+                                            generator=torch.Generator().manual_seed(1)))
     actions = torch.rand(30, 8, 3, generator=torch.Generator().manual_seed(2)) * 2 - 1
     a, b = clean.reset(), noisy.reset()
     for action in actions:

@@ -28,7 +28,8 @@ def sweep(tmp_path):
     make_run(tmp_path / "a0", "ghgg", 0, [0.0, 0.5, 0.9, 0.95])
     make_run(tmp_path / "a1", "ghgg", 1, [0.0, 0.2, 0.6, 0.7])
     make_run(tmp_path / "a2", "ghgg", 2, [0.0, 0.0, 0.1])  # shorter: held at 0.1
-    make_run(tmp_path / "b0", "gchgg", 0, [0.1, 0.9, 1.0], extra={"diversity_decided": [0.2, 0.4, 0.6], "stopped": [0, 0, 1], "d_g": [0.5, 0.4, 0.0]})
+    make_run(tmp_path / "b0", "gchgg", 0, [0.1, 0.9, 1.0],
+             extra={"diversity_decided": [0.2, 0.4, 0.6], "stopped": [0, 0, 1], "d_g": [0.5, 0.4, 0.0]})
     make_run(tmp_path / "b1", "gchgg", 1, [0.0, 0.0, 0.5], scale="standardized")
     return tmp_path
 
@@ -96,7 +97,7 @@ def test_diagnostic_columns_are_tabulated_and_drawn_beside_success(sweep, capsys
     plot.main([str(sweep / "b0"), "--y", "success_rate", "d_g", "--at", "1", "--out", str(out)])
     text = capsys.readouterr().out
     head, _, row = text.splitlines()[:3]
-    cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|"))))
+    cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|")), strict=True))
     assert cells["first ≥ 0.5"] == "1 [1, 1] (1/1)"  # success 0.9 at 1, although d_g is 0.4 there
     assert cells["success_rate at 1"] == "0.90 [0.90, 0.90]" and cells["final success_rate"] == "1.00 [1.00, 1.00]"
     assert cells["d_g at 1"] == "0.40 [0.40, 0.40]" and cells["final d_g"] == "0.00 [0.00, 0.00]"
@@ -112,7 +113,8 @@ def test_runs_without_a_column_are_left_out_of_its_statistics_and_an_unknown_col
     assert plot.iqr(plot.curves(both["all"], "d_g")[:, 1]) == (0.4, 0.4, 0.4)  # a0 has no d_g: not a NaN median
     with pytest.raises(SystemExit):
         plot.main([str(sweep), "--y", "d_gg"])
-    assert "--y d_gg: no run logged this column; the runs' columns are d_g, diversity_decided" in capsys.readouterr().err
+    assert ("--y d_gg: no run logged this column; the runs' columns are d_g, diversity_decided"
+            in capsys.readouterr().err)
 
 
 def write_csv(path, success):
@@ -137,7 +139,8 @@ def test_budgets_come_from_the_config_else_the_tasks_fig5_experiment_else_the_ov
     write_csv(tmp_path / "elsewhere" / "her-seed0.csv", [0.0])
     push, pick, reach, other = (plot.load_run(tmp_path / t / "her-seed0.csv")
                                 for t in ("push_new", "pick_obstacle", "reach", "elsewhere"))
-    assert [plot.budget_of(r) for r in (push, pick, reach, other)] == [200, 400, 15, None]  # conf/experiment/fig5_*.yaml
+    # conf/experiment/fig5_*.yaml
+    assert [plot.budget_of(r) for r in (push, pick, reach, other)] == [200, 400, 15, None]
     assert plot.budget_of(pick, override=250) == 250
     configured = plot.load_run(sweep / "a0")
     configured.settings["train.iterations"] = "150"
@@ -176,7 +179,7 @@ def test_the_table_gives_iqm_intervals_of_both_scores_and_the_censored_count(tmp
         write_csv(tmp_path / "toy" / f"a-seed{seed}.csv", rates)
     plot.main([str(tmp_path / "toy"), "--at", "1"])
     head, _, row = capsys.readouterr().out.splitlines()[:3]
-    cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|"))))
+    cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|")), strict=True))
     # task toy has no Fig. 5 experiment: the budget is its longest run, 4 iterations; the third run is
     # censored at 4 and counted at 5
     first = (1 + 2 + 5) / 3  # 3 runs: the IQM is their mean
@@ -186,7 +189,7 @@ def test_the_table_gives_iqm_intervals_of_both_scores_and_the_censored_count(tmp
     assert cells["AUC IQM [95 % CI]"].startswith(f"{auc:.3f} [") and cells["AUC IQM [95 % CI]"].endswith(" over 0-3")
     plot.main([str(tmp_path / "toy"), "--at", "1", "--budget", "2"])  # first >= 0.9 must come before iteration 2
     head, _, row = capsys.readouterr().out.splitlines()[:3]
-    cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|"))))
+    cells = dict(zip((c.strip() for c in head.split("|")), (c.strip() for c in row.split("|")), strict=True))
     # the second run's 0.9 at iteration 2 is past the budget: both it and the third are censored at 2, counted at 3
     assert cells["first ≥ 0.9 IQM [95 % CI]"] == f"{(1 + 3 + 3) / 3:.1f} [1.0, 3.0]" and cells["censored"] == "2"
     assert cells["AUC IQM [95 % CI]"].endswith(" over 0-1")  # R: the budget, 2
@@ -195,7 +198,8 @@ def test_the_table_gives_iqm_intervals_of_both_scores_and_the_censored_count(tmp
 def test_compare_prints_the_probability_that_a_run_of_one_group_beats_one_of_the_other(tmp_path, capsys):
     for seed, (fast, slow) in enumerate([(1, 3), (2, 3), (1, None)]):
         write_csv(tmp_path / "toy" / f"fast-seed{seed}.csv", [0.0] * fast + [0.9] * (5 - fast))
-        write_csv(tmp_path / "toy" / f"slow-seed{seed}.csv", [0.0] * 5 if slow is None else [0.0] * slow + [0.95] * (5 - slow))
+        write_csv(tmp_path / "toy" / f"slow-seed{seed}.csv",
+                  [0.0] * 5 if slow is None else [0.0] * slow + [0.95] * (5 - slow))
     write_csv(tmp_path / "other" / "fast-seed0.csv", [0.0, 1.0])
     plot.main([str(tmp_path / "toy"), str(tmp_path / "other"), "--compare", "fast", "slow"])
     out = capsys.readouterr().out.splitlines()
@@ -212,7 +216,8 @@ def test_compare_prints_the_probability_that_a_run_of_one_group_beats_one_of_the
 
 def test_compare_counts_ties_half_and_leaves_the_order_of_censored_runs_open(tmp_path, capsys):
     # a: 0.9 at 1, and one run never (censored at 4); b: 0.9 at 1, and at 2
-    for name, rates in {"a-seed0": [0, 1, 1, 1], "a-seed1": [0, 0, 0, 0], "b-seed0": [0, 1, 1, 1], "b-seed1": [0, 0, 1, 1]}.items():
+    for name, rates in {"a-seed0": [0, 1, 1, 1], "a-seed1": [0, 0, 0, 0],
+                        "b-seed0": [0, 1, 1, 1], "b-seed1": [0, 0, 1, 1]}.items():
         write_csv(tmp_path / "toy" / f"{name}.csv", rates)
     plot.main([str(tmp_path / "toy"), "--compare", "a", "b"])
     line = capsys.readouterr().out.strip()

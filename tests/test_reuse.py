@@ -1,4 +1,5 @@
-"""gchgg's replay parts outside its tasks: any goal dimension, user metrics, padded episodes, EBP axes, write-then-sample."""
+"""gchgg's replay parts outside its tasks: any goal dimension, user metrics, padded episodes, EBP axes,
+write-then-sample."""
 
 from __future__ import annotations
 
@@ -92,7 +93,8 @@ def plain_grid_distance(n: int, a: tuple[int, int], b: tuple[int, int]) -> float
     """Dijkstra on the 8-connected 21 × 21 grid of the 2 m field, the wall's vertices removed, written out."""
     spacing = 2.0 / (n - 1)
     xs = -1.0 + spacing * np.arange(n)
-    free = ~(((xs[:, None] >= -1.0 - 1e-9) & (xs[:, None] <= 0.4 + 1e-9)) & ((xs[None, :] >= -0.1 - 1e-9) & (xs[None, :] <= 0.1 + 1e-9)))
+    free = ~(((xs[:, None] >= -1.0 - 1e-9) & (xs[:, None] <= 0.4 + 1e-9))
+             & ((xs[None, :] >= -0.1 - 1e-9) & (xs[None, :] <= 0.1 + 1e-9)))
     ids = -np.ones((n, n), dtype=int)
     ids[free] = np.arange(free.sum())
     weights = np.zeros((free.sum(), free.sum()))
@@ -152,7 +154,9 @@ def test_cher_and_ebp_take_goals_of_any_dimension():
     data["energy"] = torch.rand(600)
     batch = buffer_of(CherSampler(pool_size=200, tradeoff=1.0), data, batch=32).sample()
     assert batch["desired_goal"].shape == (32, 2)
-    assert batch["proximity"][0].item() == pytest.approx(-float(plain_distance(batch["desired_goal"], batch["target_goal"]).sum()), rel=1e-5)
+    assert batch["proximity"][0].item() == pytest.approx(
+        -float(plain_distance(batch["desired_goal"], batch["target_goal"]).sum()), rel=1e-5
+    )
     assert buffer_of(EnergySampler(), data, batch=32).sample()["desired_goal"].shape == (32, 2)
 
 
@@ -165,7 +169,8 @@ def test_shapes_are_checked_where_they_enter():
     scalar = TensorDict({"desired_goal": torch.rand(200), "target_goal": torch.rand(200)}, [200])
     with pytest.raises(ValueError, match=r"'desired_goal'.*a 1-D goal is stored as \[1\].*\(\)"):
         buffer_of(GraphCurriculumSampler(EuclideanMetric(), 4), scalar, batch=16).sample()
-    with pytest.raises(ValueError, match=r"'desired_goal'.*\[2\] like the metric's lattice.*\(3,\)"):  # 3-D goals, 2-D graph
+    # 3-D goals, 2-D graph
+    with pytest.raises(ValueError, match=r"'desired_goal'.*\[2\] like the metric's lattice.*\(3,\)"):
         buffer_of(GraphCurriculumSampler(graph_2d(), 4), transitions(200, 3), batch=16).sample()
     with pytest.raises(ValueError, match=r"same d.*\(4, 2\) and \(4, 3\)"):
         EuclideanMetric().distance(torch.zeros(4, 2), torch.zeros(4, 3))
@@ -201,7 +206,9 @@ def test_a_float64_metric_is_cast_and_a_wrong_shape_refused():
     for sampler in (GraphCurriculumSampler(Float64Metric(), 4, 1.0), CherSampler(Float64Metric(), pool_size=300)):
         batch = buffer_of(sampler, data, batch=32).sample()
         assert batch["proximity"].dtype == torch.float32
-        assert batch["proximity"][0].item() == pytest.approx(-float(plain_distance(batch["desired_goal"], batch["target_goal"]).sum()), rel=1e-5)
+        assert batch["proximity"][0].item() == pytest.approx(
+            -float(plain_distance(batch["desired_goal"], batch["target_goal"]).sum()), rel=1e-5
+        )
     for sampler in (GraphCurriculumSampler(FlatMetric(), 4, 1.0), CherSampler(FlatMetric(), pool_size=300)):
         with pytest.raises(ValueError, match=r"one distance per pair.*shape \((3000|300),\).*got shape \(\)"):
             buffer_of(sampler, data, batch=32).sample()
@@ -221,7 +228,8 @@ def padded_episodes(lengths=(3, 5, 1)):
     for n, length in enumerate(lengths):
         path = torch.stack([torch.arange(length + 1.0) + 10 * (n + 1), torch.full((length + 1,), float(n))], -1)
         parts.append(TensorDict({
-            "observation": torch.ones(length, 4), "achieved_goal": path[:-1], "desired_goal": torch.full((length, 2), -5.0),
+            "observation": torch.ones(length, 4), "achieved_goal": path[:-1],
+            "desired_goal": torch.full((length, 2), -5.0),
             "collector": {"traj_ids": torch.full((length,), n)},
             "next": {"achieved_goal": path[1:], "reward": -torch.ones(length, 1),
                      "done": torch.arange(length).eq(length - 1).unsqueeze(-1)},
@@ -286,7 +294,8 @@ def test_trajectory_energy_up_axis_and_weights():
     y = torch.tensor([0.0, 0.01, 0.03, 0.04])
     lifted_y = torch.stack([torch.zeros(4), y], -1)  # a 2-D goal space whose "up" is y (axis 1)
     lifted_z = torch.stack([torch.zeros(4), torch.zeros(4), y], -1)
-    assert trajectory_energy(lifted_y, dt=0.05, up_axis=1).item() == pytest.approx(trajectory_energy(lifted_z, dt=0.05).item())
+    assert (trajectory_energy(lifted_y, dt=0.05, up_axis=1).item()
+            == pytest.approx(trajectory_energy(lifted_z, dt=0.05).item()))
     # written out: potential g·Δh plus kinetic ½v², increases clipped to [0, 0.5]
     velocity = y.diff() / 0.05
     e = 9.81 * (y[1:] - y[0]) * 2.0 + 0.5 * velocity.square() * 0.5
@@ -294,7 +303,9 @@ def test_trajectory_energy_up_axis_and_weights():
     got = trajectory_energy(lifted_y, dt=0.05, up_axis=1, w_potential=2.0, w_kinetic=0.5)
     assert got.item() == pytest.approx(expected, rel=1e-6)
     no_height = trajectory_energy(lifted_y, dt=0.05, up_axis=None)
-    assert no_height.item() == pytest.approx(float((0.5 * velocity.square()).diff(prepend=torch.zeros(1)).clamp(0, 0.5).sum()), rel=1e-6)
+    assert no_height.item() == pytest.approx(
+        float((0.5 * velocity.square()).diff(prepend=torch.zeros(1)).clamp(0, 0.5).sum()), rel=1e-6
+    )
     with pytest.raises(ValueError, match=r"up_axis.*2-D positions.*-2 <= up_axis < 2.*got 2"):
         trajectory_energy(lifted_y, up_axis=2)
     episode = TensorDict({"achieved_goal": lifted_y[None, :-1], "next": {"achieved_goal": lifted_y[None, 1:]}}, [1, 3])
@@ -313,13 +324,16 @@ def test_writes_keep_the_candidates_of_untouched_rows_and_redraw_the_others():
     buffer = buffer_of(sampler, data, batch=b)
     scored = []
     original = sampler._nearest.from_points
-    sampler._nearest.from_points = lambda points, goals=None, **kw: scored.append(len(points)) or original(points, goals, **kw)
+    sampler._nearest.from_points = (
+        lambda points, goals=None, **kw: scored.append(len(points)) or original(points, goals, **kw)
+    )
     new = transitions(16 * 50, 2, seed=9)
     for step in range(16):  # a loop that writes 50 rows before every sample (the buffer is full: they wrap)
         buffer.extend(new[step * 50 : (step + 1) * 50])
         batch = buffer.sample()
         stored = buffer[:]
-        div, prox = brute_objectives(stored["desired_goal"][batch["index"]], stored["target_goal"][batch["index"]], plain_distance)
+        div, prox = brute_objectives(stored["desired_goal"][batch["index"]], stored["target_goal"][batch["index"]],
+                                     plain_distance)
         assert batch["diversity"][0].item() == pytest.approx(div, rel=1e-4)  # scored from the rows as they are now
         assert batch["proximity"][0].item() == pytest.approx(prox, rel=1e-4)
     # two pools of 8 samples' candidates, plus one sample's K candidates where a written row was among them,
@@ -335,7 +349,8 @@ def test_writes_keep_the_candidates_of_untouched_rows_and_redraw_the_others():
 # ----------------------------------------------------------------------------- help() and schedules
 
 
-@pytest.mark.parametrize("cls, first", [(GraphCurriculumSampler, "metric"), (CherSampler, "metric"), (EnergySampler, "energy_key")])
+@pytest.mark.parametrize("cls, first", [(GraphCurriculumSampler, "metric"), (CherSampler, "metric"),
+                                        (EnergySampler, "energy_key")])
 def test_help_shows_the_samplers_signatures(cls, first):
     parameters = list(inspect.signature(cls).parameters)
     assert parameters[0] == first and "args" not in parameters

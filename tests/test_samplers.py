@@ -605,9 +605,9 @@ def test_returned_batch_is_the_argmax_of_F_over_the_candidates(scale, metric_nam
 def recorded_push_new():
     """6,000 transitions drawn uniformly from the buffer of a push_new gchgg run after 7 iterations
     (tests/data/push_new_buffer.csv: desired, task and achieved goals, EBP energy; 0.1 mm text) and a push_new graph."""
-    import envs
-
     import numpy as np
+
+    import envs
 
     rows = torch.from_numpy(np.loadtxt(Path(__file__).parent / "data" / "push_new_buffer.csv", delimiter=",")).float()
     geometry = envs.geometry("push_new")

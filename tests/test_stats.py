@@ -1,4 +1,5 @@
-"""Interval estimates (gchgg.stats) against plainly written references: IQM, bootstrap CIs, probability of improvement."""
+"""Interval estimates (gchgg.stats) against plainly written references: IQM, bootstrap CIs, probability of
+improvement."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ def reference_poi(x, y, lower_is_better=False, x_censored=None, y_censored=None)
     x_censored = x_censored or [False] * len(x)
     y_censored = y_censored or [False] * len(y)
     total = Fraction(0)
-    for (a, ca), (b, cb) in itertools.product(zip(x, x_censored), zip(y, y_censored)):
+    for (a, ca), (b, cb) in itertools.product(zip(x, x_censored, strict=True), zip(y, y_censored, strict=True)):
         a_better = a < b if lower_is_better else a > b
         b_better = b < a if lower_is_better else b > a
         if a_better and not ca:
@@ -91,7 +92,8 @@ def test_the_interval_contains_the_estimate_and_repeats_for_a_seed():
     estimate = stats.iqm_interval(scores)
     assert estimate.low <= estimate.point <= estimate.high
     assert stats.iqm_interval(scores) == estimate  # default: a generator seeded 0, so tables regenerate alike
-    assert stats.iqm_interval(scores, rng=np.random.default_rng(1)) == stats.iqm_interval(scores, rng=np.random.default_rng(1))
+    assert (stats.iqm_interval(scores, rng=np.random.default_rng(1))
+            == stats.iqm_interval(scores, rng=np.random.default_rng(1)))
     assert stats.iqm_interval([5.0, 5.0, 5.0]).format(1) == "5.0 [5.0, 5.0]"
     assert stats.iqm_interval([5.0]) == stats.Estimate(5.0, 5.0, 5.0, 1)
 

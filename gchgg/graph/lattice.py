@@ -54,7 +54,6 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 
 from gchgg import checkpoint
 
-
 __all__ = ["DEFAULT_MARGIN", "DEFAULT_N", "USER_CACHE_DIR", "GoalGraph", "check_density_criterion", "default_cache_dir"]
 
 _log = logging.getLogger(__name__)
@@ -387,7 +386,8 @@ class GoalGraph:
         g = torch.as_tensor(goals)
         if g.shape[-1:] != (len(self.n),):
             raise ValueError(
-                f"goals must have shape [..., {len(self.n)}] (the graph's field is {len(self.n)}-D), got {tuple(g.shape)}"
+                f"goals must have shape [..., {len(self.n)}] (the graph's field is {len(self.n)}-D), "
+                f"got {tuple(g.shape)}"
             )
         if g.dtype not in (torch.float32, torch.float64):
             g = g.to(torch.float32)
@@ -438,8 +438,8 @@ class GoalGraph:
         for step in itertools.product((-1, 0, 1), repeat=d):
             if step <= (0,) * d:  # each undirected edge once: the 13 (2-D: 4) "forward" neighbours
                 continue
-            source = tuple(slice(max(0, -d), k - max(0, d)) for d, k in zip(step, self.n))
-            target = tuple(slice(max(0, d), k - max(0, -d)) for d, k in zip(step, self.n))
+            source = tuple(slice(max(0, -d), k - max(0, d)) for d, k in zip(step, self.n, strict=True))
+            target = tuple(slice(max(0, d), k - max(0, -d)) for d, k in zip(step, self.n, strict=True))
             a, b = compact[source].reshape(-1), compact[target].reshape(-1)
             keep = (a >= 0) & (b >= 0)
             rows.append(a[keep])
@@ -518,7 +518,8 @@ class GoalGraph:
         """The table of a cache file's state (the project's checksummed checkpoint format), checked
         against this graph."""
         slots = self.num_vertices + 1
-        expected = {"format": _FORMAT, "key": self.cache_path.stem.removeprefix("goalgraph-"), "vertices": self.num_vertices}
+        expected = {"format": _FORMAT, "key": self.cache_path.stem.removeprefix("goalgraph-"),
+                    "vertices": self.num_vertices}
         if not isinstance(state, dict) or any(state.get(k) != v for k, v in expected.items()):
             raise _CorruptCache("the file does not describe this graph")
         table = state.get("table")
@@ -662,7 +663,8 @@ def _box(name: str, box: Any, dim: int | None = None) -> tuple[np.ndarray, np.nd
         or (dim is not None and center.shape != (dim,))
         or not (np.isfinite(center).all() and np.isfinite(half).all())
     ):
-        allowed = {None: "two finite (x, y, z) triples (3-D) or (x, y) pairs (2-D)", 3: "two finite (x, y, z) triples, like the 3-D field",
+        allowed = {None: "two finite (x, y, z) triples (3-D) or (x, y) pairs (2-D)",
+                   3: "two finite (x, y, z) triples, like the 3-D field",
                    2: "two finite (x, y) pairs, like the 2-D field"}[dim]
         raise ValueError(f"{name} must be a box (center, half) of {allowed} in metres, got {box!r}")
     if (half < 0).any():

@@ -1,4 +1,5 @@
-"""Goal metrics: the :class:`Metric` protocol every metric implements, its :class:`Lattice` view, and the Euclidean metric."""
+"""Goal metrics: the :class:`Metric` protocol every metric implements, its :class:`Lattice` view, and the
+Euclidean metric."""
 
 from __future__ import annotations
 

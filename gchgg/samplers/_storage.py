@@ -1,4 +1,5 @@
-"""Shared plumbing of the samplers: reading one field from a replay storage, per-row caches, the generator, state files."""
+"""Shared plumbing of the samplers: reading one field from a replay storage, per-row caches, the generator,
+state files."""
 
 from __future__ import annotations
 

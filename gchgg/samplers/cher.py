@@ -41,10 +41,11 @@ class CherSampler(Sampler):
     neighbour its candidates are (with k = 1, one on average): :func:`lazier_than_lazy_greedy` scores
     many steps at once and keeps those no earlier step changed, with the plain loop's choices. A
     sample costs one k-d tree over the pool's distinct goals (:func:`nearest_other`) and a few
-    vectorised passes (``benchmarks/samplers.py`` times both). Unlike CHER's code the cover is only updated with the chosen entry
-    (CHER's loop also kept the cover of a better-scoring but finally rejected subset member; with
-    k = 1 the gains are the same either way). An unreachable goal (``inf``) counts as the largest
-    finite distance of the pool, as in :class:`~gchgg.samplers.GraphCurriculumSampler`.
+    vectorised passes (``benchmarks/samplers.py`` times both). Unlike CHER's code the cover is only
+    updated with the chosen entry (CHER's loop also kept the cover of a better-scoring but finally
+    rejected subset member; with k = 1 the gains are the same either way). An unreachable goal
+    (``inf``) counts as the largest finite distance of the pool, as in
+    :class:`~gchgg.samplers.GraphCurriculumSampler`.
 
     ``info`` (copied into every sampled row by a ``TensorDictReplayBuffer``): ``diversity``, the
     facility-location value Σ_v cover(v) of the chosen batch over the pool (each pool entry's best
@@ -140,7 +141,8 @@ class CherSampler(Sampler):
     def _goals(self, key: NestedKey, goals: torch.Tensor, dim: int | None = None) -> torch.Tensor:
         """Pool goals ``[P, d]`` read under ``key``, checked (d ≥ 1; ``dim`` when given, the goals' d)."""
         if goals.ndim != 2 or goals.shape[1] < 1 or (dim is not None and goals.shape[1] != dim):
-            allowed = f"[{dim}] like {self.goal_key!r}" if dim is not None else "[d] with d >= 1 (a 1-D goal is stored as [1])"
+            allowed = (f"[{dim}] like {self.goal_key!r}" if dim is not None
+                       else "[d] with d >= 1 (a 1-D goal is stored as [1])")
             raise ValueError(
                 f"CherSampler reads goals {key!r} from the storage as one vector per transition, {allowed}; "
                 f"got {tuple(goals.shape[1:])} per transition"
@@ -331,8 +333,9 @@ def nearest_other(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     the same distance the k-d tree chooses.
 
     Exact copies are grouped first (a hash of the coordinates' bits, checked), so the k-d tree is
-    built on distinct points only and queried only for points without copies: a pool where an object at rest repeats one position
-    thousands of times costs no more than its distinct positions (``benchmarks/samplers.py``).
+    built on distinct points only and queried only for points without copies: a pool where an
+    object at rest repeats one position thousands of times costs no more than its distinct
+    positions (``benchmarks/samplers.py``).
 
     Args:
         points: ``[n, d]`` float64, n ≥ 2.

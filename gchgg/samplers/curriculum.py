@@ -17,9 +17,17 @@ from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
 from gchgg.graph import Metric
-from gchgg.samplers._storage import WrittenRows, check_sampleable, dump_state, generator, init_signature, load_state, read_field
+from gchgg.samplers._storage import (
+    WrittenRows,
+    check_sampleable,
+    dump_state,
+    generator,
+    init_signature,
+    load_state,
+    read_field,
+)
 from gchgg.samplers.energy import EnergySampler
-from gchgg.samplers.nearest import NearestNeighbours, check_distances, point_size
+from gchgg.samplers.nearest import NearestNeighbours, check_distances
 from gchgg.samplers.tradeoff import Tradeoff, as_tradeoff
 from gchgg.validation import check_choice, check_number
 
@@ -217,7 +225,8 @@ class GraphCurriculumSampler(Sampler):
     ) -> None:
         for name, m in (("metric", metric), ("diversity_metric", diversity_metric)):
             if m is not None and not isinstance(m, Metric):
-                raise TypeError(f"{name} must be a gchgg.graph.Metric (distance(a, b) and lattice: GoalGraph, EuclideanMetric), got {m!r}")
+                raise TypeError(f"{name} must be a gchgg.graph.Metric (distance(a, b) and lattice: GoalGraph, "
+                                f"EuclideanMetric), got {m!r}")
         check_number("num_candidates", num_candidates, integer=True, low=1)
         if unreachable_distance is not None:
             check_number("unreachable_distance (or None)", unreachable_distance, low=0)
@@ -322,7 +331,8 @@ class GraphCurriculumSampler(Sampler):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """F_div and F_prox ``[A, K]`` of the candidate batches ``index`` ``[A, K, B]`` (F_div only of the
         candidates ``only`` selects, a bool ``[A, K]``, when given: ``[M]``)."""
-        rows = self._stored_rows(storage, index, n)  # [A, K, B, d + 4 (+ d)]: shortlist point, goal-to-target distance (goal)
+        # [A, K, B, d + 4 (+ d)]: shortlist point, goal-to-target distance (goal)
+        rows = self._stored_rows(storage, index, n)
         proximity = -self._finite(rows[..., self._to_target]).sum(-1)  # eq. 15 with C = 0, [A, K]
         scored = rows if only is None else rows[only]
         return self._diversity(scored.view(-1, *rows.shape[2:])).view(scored.shape[:-2]), proximity
@@ -389,7 +399,8 @@ class GraphCurriculumSampler(Sampler):
         if self.diversity_key == self.goal_key and self._nearest.dim in (None, goals.shape[-1]):
             diverse = goals
         else:
-            diverse = self._goals(storage, self.diversity_key, fresh, self._nearest.dim, "the diversity metric's lattice")
+            diverse = self._goals(storage, self.diversity_key, fresh, self._nearest.dim,
+                                  "the diversity metric's lattice")
         points = self._nearest.points(diverse)  # checks the diversity goals' d against the diversity metric
         distance = check_distances(self.metric.distance(goals, targets), "metric", (len(fresh),))
         if rebuild:

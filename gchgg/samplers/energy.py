@@ -12,7 +12,15 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
-from gchgg.samplers._storage import WrittenRows, check_sampleable, dump_state, generator, init_signature, load_state, read_field
+from gchgg.samplers._storage import (
+    WrittenRows,
+    check_sampleable,
+    dump_state,
+    generator,
+    init_signature,
+    load_state,
+    read_field,
+)
 from gchgg.validation import check_number
 
 __all__ = ["EnergySampler"]
@@ -38,7 +46,7 @@ class _Runs:
     below_total: float  # the largest float64 below total: where draws are clamped
 
     @staticmethod
-    def of(energy: torch.Tensor) -> "_Runs | None":
+    def of(energy: torch.Tensor) -> _Runs | None:
         n = len(energy)
         change = torch.ones(n, dtype=torch.bool)
         change[1:] = energy[1:] != energy[:-1]

@@ -16,7 +16,9 @@ import torch
 
 from gchgg.validation import check_number
 
-__all__ = ["POINT_SIZE", "NearestNeighbours", "check_distances", "check_goals", "nearest_neighbour_distances", "point_size"]
+__all__ = [
+    "POINT_SIZE", "NearestNeighbours", "check_distances", "check_goals", "nearest_neighbour_distances", "point_size",
+]
 
 POINT_SIZE = 6  # values per shortlist point of a 3-D goal: (x, y, z, |p|², 1, id); d + 3 for d-D goals
 _GRAPH_TOLERANCE = 1e-3  # metres: slack on a graph's straight-line bounds, besides half its table's resolution
@@ -253,7 +255,8 @@ class NearestNeighbours:
         return torch.empty_like(nearest).scatter_(1, order, nearest)
 
     def _rescore(
-        self, points: torch.Tensor, repeat: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair, reach: int
+        self, points: torch.Tensor, repeat: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair,
+        reach: int,
     ):
         """The unproven goals' entries of ``nearest`` [K, B] read against every goal within ``reach`` sorted
         positions either side that is nearer in a straight line than the best distance found, except
@@ -269,7 +272,8 @@ class NearestNeighbours:
         at = cols.add((kk * b).unsqueeze(1)).view(-1)
         own = kk * b + ii
         straight, dim = None, points.shape[-1] - 3
-        for plane in points[..., :dim].permute(2, 0, 1).reshape(dim, k * b):  # a difference per coordinate plane is fast
+        # a difference per coordinate plane is fast
+        for plane in points[..., :dim].permute(2, 0, 1).reshape(dim, k * b):
             term = plane.index_select(0, at).view(cols.shape).sub_(plane.index_select(0, own).unsqueeze(1)).square_()
             straight = term if straight is None else straight.add_(term)
         straight.sqrt_().sub_(self._tolerance()).masked_fill_(cols == ii.unsqueeze(1), math.inf)  # not itself
@@ -280,7 +284,8 @@ class NearestNeighbours:
         first = straight.argmin(-1, keepdim=True)
         read = pair(ii, cols.gather(1, first).squeeze(1), kk)
         # (a row with every candidate masked has nothing to read: its argmin may point at itself)
-        best = torch.where(straight.gather(1, first).squeeze(1).isfinite(), torch.minimum(nearest[kk, ii], read), nearest[kk, ii])
+        best = torch.where(straight.gather(1, first).squeeze(1).isfinite(), torch.minimum(nearest[kk, ii], read),
+                           nearest[kk, ii])
         uu, ww = (straight < best.unsqueeze(-1)).nonzero(as_tuple=True)
         if len(uu):
             best = best.scatter_reduce(0, uu, pair(ii[uu], cols[uu, ww], kk[uu]), reduce="amin")
@@ -307,8 +312,10 @@ class NearestNeighbours:
             metric = self.metric
 
             def pair(rows: torch.Tensor, cols: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
-                shape = rows.shape if rows.shape == cols.shape == batch.shape else torch.broadcast_shapes(rows.shape, cols.shape, batch.shape)
-                return check_distances(metric.distance(goals[batch, rows], goals[batch, cols]), "diversity metric", shape)
+                shape = (rows.shape if rows.shape == cols.shape == batch.shape
+                         else torch.broadcast_shapes(rows.shape, cols.shape, batch.shape))
+                return check_distances(metric.distance(goals[batch, rows], goals[batch, cols]),
+                                       "diversity metric", shape)
 
         return pair
 

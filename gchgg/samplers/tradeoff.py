@@ -173,7 +173,9 @@ class AdaptiveTradeoff:
 
     UPDATE_EVERY = ("iteration", "episode")
 
-    def __init__(self, eta: float = 1000.0, sigma: float = 0.3, initial: float = 0.0, update_every: str = "iteration") -> None:
+    def __init__(
+        self, eta: float = 1000.0, sigma: float = 0.3, initial: float = 0.0, update_every: str = "iteration"
+    ) -> None:
         self.eta = _number("eta", eta, low=0.0)
         self.sigma = _number("sigma", sigma, low=0.0, strict=True)
         self._value = _number("initial", initial, low=0.0)

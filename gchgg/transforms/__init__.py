@@ -1,4 +1,5 @@
-"""TensorDict transforms for goal-conditioned replay: HER relabelling, EBP episode energy, next-goal sharing, observation noise."""
+"""TensorDict transforms for goal-conditioned replay: HER relabelling, EBP episode energy, next-goal sharing,
+observation noise."""
 
 from gchgg.transforms.energy import EpisodeEnergy, trajectory_energy
 from gchgg.transforms.her import DEFAULT_DROP_KEYS, GoalToNext, HerStrategy, HindsightRelabel

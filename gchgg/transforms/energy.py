@@ -15,7 +15,6 @@ and the EBP sampler (:class:`gchgg.samplers.EnergySampler`) never draws them whi
 
 from __future__ import annotations
 
-
 import torch
 from tensordict import NestedKey, TensorDictBase
 from torchrl.envs.transforms import Transform
@@ -167,4 +166,5 @@ class EpisodeEnergy(Transform):
         raise RuntimeError("EpisodeEnergy works on whole episodes: call it on a rollout, not inside a TransformedEnv")
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(dt={self.dt}, clip={self.clip}, up_axis={self.up_axis}, out_key={self.out_key!r})"
+        return (f"{type(self).__name__}(dt={self.dt}, clip={self.clip}, up_axis={self.up_axis}, "
+                f"out_key={self.out_key!r})")

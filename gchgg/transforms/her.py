@@ -48,7 +48,7 @@ DEFAULT_DROP_KEYS: tuple[NestedKey, ...] = (
 )
 
 
-class HerStrategy(str, enum.Enum):
+class HerStrategy(str, enum.Enum):  # noqa: UP042 -- StrEnum would change str()/format() of a public enum
     """Where a relabelled goal comes from (HER, Andrychowicz et al. 2017).
 
     With ``ag_t`` the achieved goal *before* step ``t`` (so ``("next", "achieved_goal")`` at step
@@ -171,7 +171,9 @@ class HindsightRelabel(Transform):
         self.generator = generator
         self.goal_key = goal_key
         self.achieved_goal_key = achieved_goal_key
-        self.reward_achieved_goal_key = achieved_goal_key if reward_achieved_goal_key is None else reward_achieved_goal_key
+        self.reward_achieved_goal_key = (
+            achieved_goal_key if reward_achieved_goal_key is None else reward_achieved_goal_key
+        )
         self.target_key = target_key
         self.reward_key = reward_key
         self.drop_keys = tuple(drop_keys)
@@ -302,7 +304,7 @@ class GoalToNext(Transform):
         super().__init__(in_keys=list(goal_keys), out_keys=[HindsightRelabel._next(k) for k in goal_keys])
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        for key, next_key in zip(self.in_keys, self.out_keys):
+        for key, next_key in zip(self.in_keys, self.out_keys, strict=True):
             tensordict.set(next_key, tensordict.get(key))
         return tensordict
 

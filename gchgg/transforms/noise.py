@@ -52,7 +52,8 @@ class ObservationNoise(Transform):
         >>> obs = torch.arange(12.0).expand(4, 12)
         >>> out = noise(TensorDict({"observation": obs.clone(), "achieved_goal": obs[:, 3:6].clone()}, [4]))
         >>> eps = out["observation"][:, 3:6] - obs[:, 3:6]
-        >>> torch.allclose(out["observation"][:, 6:9] - obs[:, 6:9], eps, atol=1e-6), torch.equal(out["observation"][:, :3], obs[:, :3])
+        >>> (torch.allclose(out["observation"][:, 6:9] - obs[:, 6:9], eps, atol=1e-6),
+        ...  torch.equal(out["observation"][:, :3], obs[:, :3]))
         (True, True)
         >>> torch.allclose(out["achieved_goal"] - out["true_achieved_goal"], eps, atol=1e-6)
         True
@@ -72,9 +73,12 @@ class ObservationNoise(Transform):
         slices = tuple(slices)
         for s in slices:
             if not isinstance(s, slice) or s.step not in (None, 1) or s.start is None or s.stop - s.start != 3:
-                raise ValueError(f"every noised slice must be a position slice of length 3 (e.g. slice(3, 6)), got {s!r}")
+                raise ValueError("every noised slice must be a position slice of length 3 (e.g. slice(3, 6)), "
+                                 f"got {s!r}")
         in_keys = [observation_key] + ([achieved_goal_key] if achieved_goal_key is not None else [])
-        out_keys = in_keys + ([true_achieved_goal_key] if achieved_goal_key is not None and true_achieved_goal_key else [])
+        out_keys = in_keys + (
+            [true_achieved_goal_key] if achieved_goal_key is not None and true_achieved_goal_key else []
+        )
         super().__init__(in_keys=in_keys, out_keys=out_keys)
         self.std = float(std)
         self.slices = slices
@@ -88,7 +92,8 @@ class ObservationNoise(Transform):
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
         observation = next_tensordict.get(self.observation_key)
-        eps = torch.randn((*observation.shape[:-1], 3), generator=self.generator, dtype=observation.dtype).mul_(self.std)
+        eps = torch.randn((*observation.shape[:-1], 3), generator=self.generator,
+                          dtype=observation.dtype).mul_(self.std)
         noisy = observation.clone()
         for s in self.slices:
             noisy[..., s] += eps
@@ -113,4 +118,5 @@ class ObservationNoise(Transform):
         return observation_spec
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(std={self.std}, slices={list(self.slices)}, achieved_goal_key={self.achieved_goal_key!r})"
+        return (f"{type(self).__name__}(std={self.std}, slices={list(self.slices)}, "
+                f"achieved_goal_key={self.achieved_goal_key!r})")
