@@ -17,8 +17,11 @@ Prints, in one run:
   in push_new's goal field) with a Euclidean metric: ``sample()`` of 256 with K = 8 against uniform
   sampling, at one torch thread and at torch's default thread count, interleaved in one run
   (target: <= 5x uniform at both), and the same with goals and targets drawn from achieved goals
-  recorded in a push_new ``gchgg_code`` run (``benchmarks/data/push_new_achieved_goals.npy``):
-  clustered as an object mostly at rest leaves them, and as ``algo=gchgg_code`` scores them.
+  recorded in a push_new run (``benchmarks/data/push_new_achieved_goals.npy``, written by
+  ``benchmarks/record_goals.py``): clustered as an object mostly at rest leaves them; the curriculum
+  sampler's own ``sample()`` at both thread counts (target: no slower at 2 than at 1); and a loop
+  that writes 50 rows before every sample, uniform against the curriculum with ``on_write="keep"``
+  (target: <= 5x) and ``"redraw"``.
 
 Run: ``python benchmarks/samplers.py`` (``--episodes``, ``--rounds`` to change the sizes; ``--docs``
 writes the output into ``docs/benchmarks.md``).
@@ -295,36 +298,46 @@ RECORDED_GOALS = ROOT / "benchmarks" / "data" / "push_new_achieved_goals.npy"
 
 def recorded_achieved_goals(size: int, generator: torch.Generator) -> torch.Tensor:
     """``size`` goals drawn (with replacement) from ``benchmarks/data/push_new_achieved_goals.npy``:
-    20,000 achieved goals drawn uniformly from the first 12 iterations of a push_new ``gchgg_code``
-    run (seed 1, commit a00f690), 815 of them distinct: an object mostly at rest repeats its position."""
+    20,000 achieved goals drawn uniformly from the first 12 iterations of the push_new ``algo=hgg`` run
+    of seed 1 (commit ccc4ff7; ``benchmarks/record_goals.py`` wrote it), 1,058 of them distinct: an
+    object mostly at rest repeats its position."""
     achieved = torch.from_numpy(np.load(RECORDED_GOALS))
     return achieved[torch.randint(len(achieved), (size,), generator=generator)]
 
 
 def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False) -> None:
     """Euclidean curriculum vs uniform in a plain TorchRL buffer, at one and at the default threads;
-    goals uniform in push_new's goal field, or (``recorded``) a recorded buffer's achieved goals."""
+    goals uniform in push_new's goal field, or (``recorded``) a recorded buffer's achieved goals.
+    Also the sampler's own ``sample`` at both thread counts, and (goals uniform) a loop that writes
+    an episode's 50 rows before every sample."""
     generator = torch.Generator().manual_seed(0)
     center, half = (torch.tensor(v) for v in envs.geometry("push_new").field)
 
-    def goals() -> torch.Tensor:
+    def goals(count: int) -> torch.Tensor:
         if recorded:
-            return recorded_achieved_goals(size, generator)
-        return center + (torch.rand(size, 3, generator=generator) * 2 - 1) * half
+            return recorded_achieved_goals(count, generator)
+        return center + (torch.rand(count, 3, generator=generator) * 2 - 1) * half
 
-    data = TensorDict({
-        "observation": torch.randn(size, 25, generator=generator), "desired_goal": goals(), "target_goal": goals(),
-        "action": torch.rand(size, 3, generator=generator) * 2 - 1,
-        "next": {"observation": torch.randn(size, 25, generator=generator), "reward": -torch.ones(size, 1)},
-    }, [size])  # fmt: skip
-    storage = LazyTensorStorage(size)
-    samplers = {"uniform": RandomSampler(), "curriculum": GraphCurriculumSampler(EuclideanMetric(), 8, 1.0)}
-    buffers = {name: TensorDictReplayBuffer(storage=storage, sampler=sampler, batch_size=BATCH,
-                                            generator=torch.Generator().manual_seed(1))
-               for name, sampler in samplers.items()}  # fmt: skip
-    buffers["uniform"].extend(data)
+    def rows(count: int) -> TensorDict:
+        return TensorDict({
+            "observation": torch.randn(count, 25, generator=generator), "desired_goal": goals(count),
+            "target_goal": goals(count), "action": torch.rand(count, 3, generator=generator) * 2 - 1,
+            "next": {"observation": torch.randn(count, 25, generator=generator), "reward": -torch.ones(count, 1)},
+        }, [count])  # fmt: skip
+
+    def plain(sampler) -> TensorDictReplayBuffer:
+        buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(size), sampler=sampler, batch_size=BATCH,
+                                        generator=torch.Generator().manual_seed(1))
+        buffer.extend(data)
+        return buffer
+
+    data = rows(size)
+    buffers = {"uniform": plain(RandomSampler()),
+               "curriculum": plain(GraphCurriculumSampler(EuclideanMetric(), 8, 1.0))}
     thread_counts = sorted({1, DEFAULT_THREADS})
     times = {(name, t): [] for name in buffers for t in thread_counts}
+    alone = {t: [] for t in thread_counts}  # the curriculum sampler's own sample(), without TorchRL's row gather
+    curriculum = buffers["curriculum"]
     for _ in range(rounds):
         for threads in thread_counts:
             torch.set_num_threads(threads)
@@ -334,16 +347,56 @@ def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False)
                 for _ in range(48):  # six pools of draw_ahead=8
                     buffer.sample()
                 times[name, threads].append((time.perf_counter() - start) / 48)
+            curriculum.sampler._pool = None
+            start = time.perf_counter()
+            for _ in range(48):
+                curriculum.sampler.sample(curriculum.storage, BATCH)
+            alone[threads].append((time.perf_counter() - start) / 48)
     torch.set_num_threads(1)
     kind = "a recorded buffer's achieved goals" if recorded else "goals uniform in the field"
     print(f"plain TensorDictReplayBuffer, {size:,} synthetic transitions, {kind}, EuclideanMetric, sample() of "
           f"{BATCH}, K=8, median of {rounds} interleaved rounds:")
     for threads in thread_counts:
         uniform = statistics.median(times["uniform", threads])
-        curriculum = statistics.median(times["curriculum", threads])
+        seconds = statistics.median(times["curriculum", threads])
         label = "default" if threads == DEFAULT_THREADS else "one"
-        print(f"  {threads} thread(s) ({label}): uniform {uniform * 1e3:.3f} ms, curriculum {curriculum * 1e3:.3f} ms "
-              f"= {curriculum / uniform:.1f} x uniform (target <= 5)")
+        print(f"  {threads} thread(s) ({label}): uniform {uniform * 1e3:.3f} ms, curriculum {seconds * 1e3:.3f} ms "
+              f"= {seconds / uniform:.1f} x uniform (target <= 5); the sampler's own sample() "
+              f"{statistics.median(alone[threads]) * 1e3:.3f} ms")
+    if len(thread_counts) > 1:
+        one, default = (statistics.median(alone[t]) for t in thread_counts)
+        print(f"  sampler's own sample() at {thread_counts[-1]} threads / at 1 thread = {default / one:.2f} "
+              "(target <= 1: it runs on one thread whatever the caller's count)")
+    if recorded:
+        return
+    # A loop that writes before every sample (TorchRL collectors extend, then the loss samples).
+    written = rows(400 * 50)
+    loops = {
+        "uniform": plain(RandomSampler()),
+        'curriculum, on_write="keep"': plain(GraphCurriculumSampler(EuclideanMetric(), 8, 1.0)),
+        'curriculum, on_write="redraw"': plain(GraphCurriculumSampler(EuclideanMetric(), 8, 1.0, on_write="redraw")),
+    }
+    loop_times: dict = {(name, t): [] for name in loops for t in thread_counts}
+    step = 0
+    for _ in range(rounds):
+        for threads in thread_counts:
+            torch.set_num_threads(threads)
+            for name, buffer in loops.items():
+                start = time.perf_counter()
+                for _ in range(32):
+                    buffer.extend(written[(step % 400) * 50 : (step % 400 + 1) * 50])
+                    buffer.sample()
+                    step += 1
+                loop_times[name, threads].append((time.perf_counter() - start) / 32)
+    torch.set_num_threads(1)
+    print(f"write-then-sample: extend(50 rows) then sample() of {BATCH}, same buffer, median of {rounds} "
+          "interleaved rounds of 32 (target: keep <= 5 x uniform):")
+    for threads in thread_counts:
+        uniform = statistics.median(loop_times["uniform", threads])
+        line = ", ".join(f"{name} {statistics.median(loop_times[name, threads]) * 1e3:.3f} ms = "
+                         f"{statistics.median(loop_times[name, threads]) / uniform:.1f} x" for name in loops if
+                         name != "uniform")
+        print(f"  {threads} thread(s): uniform {uniform * 1e3:.3f} ms; {line}")
 
 
 def main() -> None:
@@ -367,7 +420,7 @@ def main() -> None:
     plain_buffer_speed(args.rounds)
     if RECORDED_GOALS.exists():
         plain_buffer_speed(args.rounds, recorded=True)
-    else:  # a recorded run's file, not in git (*.npy is ignored)
+    else:  # benchmarks/record_goals.py writes it from a run's replay files
         print(f"plain buffer with a recorded buffer's achieved goals: skipped, {RECORDED_GOALS.relative_to(ROOT)} "
               "is not in this checkout")
 

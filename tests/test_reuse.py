@@ -317,7 +317,7 @@ def test_trajectory_energy_up_axis_and_weights():
 # ----------------------------------------------------------------------------- 5. write-then-sample
 
 
-def test_writes_keep_the_candidates_of_untouched_rows_and_redraw_the_others():
+def test_writes_skip_the_candidates_they_reach_and_keep_the_others():
     size, b, k = 20_000, 64, 4
     data = transitions(size, 2)
     sampler = GraphCurriculumSampler(EuclideanMetric(), k, 1.0, draw_ahead=8)
@@ -328,22 +328,29 @@ def test_writes_keep_the_candidates_of_untouched_rows_and_redraw_the_others():
         lambda points, goals=None, **kw: scored.append(len(points)) or original(points, goals, **kw)
     )
     new = transitions(16 * 50, 2, seed=9)
+    written_since_draw: set[int] = set()
     for step in range(16):  # a loop that writes 50 rows before every sample (the buffer is full: they wrap)
-        buffer.extend(new[step * 50 : (step + 1) * 50])
+        pools = len(scored)
+        index = buffer.extend(new[step * 50 : (step + 1) * 50])
         batch = buffer.sample()
+        if len(scored) > pools:  # a pool was drawn after this write
+            written_since_draw = set()
+        else:  # the chosen candidate holds no row written since its pool was drawn
+            written_since_draw |= set(index.tolist())
+            assert not written_since_draw & set(batch["index"].tolist())
         stored = buffer[:]
         div, prox = brute_objectives(stored["desired_goal"][batch["index"]], stored["target_goal"][batch["index"]],
                                      plain_distance)
         assert batch["diversity"][0].item() == pytest.approx(div, rel=1e-4)  # scored from the rows as they are now
         assert batch["proximity"][0].item() == pytest.approx(prox, rel=1e-4)
-    # two pools of 8 samples' candidates, plus one sample's K candidates where a written row was among them,
-    # instead of a whole pool after every write (16 · 8 · K)
-    assert sum(scored) <= 2 * 8 * k + 16 * k
+    # whole pools only, drawn when too few candidates the writes did not reach are left, far fewer than
+    # a pool after every write (16 · 8 · K)
+    assert all(n == 8 * k for n in scored) and sum(scored) <= 16 * 8 * k // 3
     redraw = GraphCurriculumSampler(EuclideanMetric(), k, 1.0, draw_ahead=8, on_write="redraw")
     buffer = buffer_of(redraw, data, batch=b)
     buffer.extend(new[:50])
     buffer.sample()
-    assert redraw._pool.next == 1  # dropped at the write and drawn afresh
+    assert redraw._pool.next == k  # dropped at the write and drawn afresh
 
 
 # ----------------------------------------------------------------------------- help() and schedules

@@ -252,6 +252,26 @@ def test_nearest_neighbours_are_exact_for_an_object_at_rest(graph, block):
         assert torch.equal(fast, exact)  # the same metric reads: bit for bit
 
 
+@pytest.mark.parametrize("b", [5, 37, 97, 256])
+@pytest.mark.parametrize("block", [32, 6])
+def test_nearest_neighbours_are_exact_when_most_goals_repeat_a_few(graph, b, block):
+    """A few distinct goals, each repeated many times in a different number per batch (the search runs
+    over the distinct ones only), beside one batch without repeats and goals off the graph."""
+    g = torch.Generator().manual_seed(b + block)
+    spots = torch.rand(12, 3, generator=g) * 2 - 1
+    spots[:, 2] = 0.0
+    spots[-1] = torch.tensor([3.0, 0.0, 0.0])  # off the graph
+    distinct = torch.arange(5).view(5, 1) + 3  # 3..7 distinct spots per batch
+    goals = spots[torch.randint(12, (5, b), generator=g) % distinct]
+    goals[0] = torch.rand(b, 3, generator=g) * 2 - 1  # no repeats at all
+    goals[0, :, 2] = 0.0
+    for metric in (graph, EuclideanMetric()):
+        exact = brute_force_nearest(goals, metric)
+        for neighbours in (1, 3):
+            fast = nearest_neighbour_distances(goals, metric, neighbours, block=block)
+            assert torch.equal(fast, exact), (metric, neighbours)
+
+
 def test_euclidean_nearest_neighbours_tell_goals_one_float_step_apart():
     """Exact duplicates with, between them in the sorted order, a goal one float step away in y and z
     only; far goals move the origin so that the points (relative positions) round the step away."""
@@ -667,3 +687,42 @@ def test_dumps_and_loads_continue_with_the_same_batches(name, storage_cls, tmp_p
         restored.loads(folder)
         for _ in range(10):
             assert torch.equal(original.sample()["index"], restored.sample()["index"]), before
+
+
+# ----------------------------------------------------------------------------- threads
+
+
+class _ThreadCountingMetric(EuclideanMetric):
+    """Euclidean distances that record the torch thread count they were computed under."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.threads: set[int] = set()
+
+    def distance(self, a, b):
+        self.threads.add(torch.get_num_threads())
+        return super().distance(a, b)
+
+
+@pytest.mark.parametrize("kind", ["curriculum", "cher", "ebp"])
+def test_samplers_run_on_one_thread_and_restore_the_callers_count(kind, monkeypatch):
+    import importlib
+
+    metric = _ThreadCountingMetric()
+    sampler = {"curriculum": lambda: GraphCurriculumSampler(metric, 4, 1.0),
+               "cher": lambda: CherSampler(metric, pool_size=128),
+               "ebp": lambda: EnergySampler()}[kind]()
+    module = importlib.import_module({"curriculum": "gchgg.samplers.curriculum", "cher": "gchgg.samplers.cher",
+                                      "ebp": "gchgg.samplers.energy"}[kind])
+    reads: set[int] = set()
+    read_field = module.read_field
+    monkeypatch.setattr(module, "read_field", lambda *a, **k: reads.add(torch.get_num_threads()) or read_field(*a, **k))
+    buffer = make_buffer(sampler, goal_transitions(2000, energy=torch.rand(2000)), batch=32)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        sampler.sample(buffer.storage, 32)  # reads the storage (energies, goals) and, but for EBP, the metric
+        assert reads == {1} and metric.threads <= {1}
+        assert torch.get_num_threads() == 2  # the caller's count, restored
+    finally:
+        torch.set_num_threads(before)

@@ -1,8 +1,9 @@
 """Shared plumbing of the samplers: reading one field from a replay storage, per-row caches, the generator,
-state files."""
+state files, one intra-op thread for ``sample``."""
 
 from __future__ import annotations
 
+import functools
 import inspect
 import json
 from pathlib import Path
@@ -14,6 +15,30 @@ from tensordict import NestedKey, is_tensor_collection
 from torchrl.data.replay_buffers.storages import Storage, TensorStorage
 
 _STATE_FILE = "sampler_state.json"
+
+
+def one_thread(sample):
+    """Run a sampler's ``sample`` on one torch intra-op thread, restoring the caller's count after.
+
+    A sample's tensor work is many small operations; fanning them out over threads costs more than
+    it gains, and on a machine whose cores are busy (two training runs on two cores) a waiting
+    thread makes it several times slower (``benchmarks/samplers.py`` prints 1 against 2 threads).
+    The count is the calling thread's (torch's OpenMP and MKL settings are per thread), so other
+    threads, e.g. a training loop beside a prefetching buffer, keep theirs.
+    """
+
+    @functools.wraps(sample)
+    def wrapper(*args, **kwargs):
+        threads = torch.get_num_threads()
+        if threads == 1:
+            return sample(*args, **kwargs)
+        torch.set_num_threads(1)
+        try:
+            return sample(*args, **kwargs)
+        finally:
+            torch.set_num_threads(threads)
+
+    return wrapper
 
 
 def check_sampleable(storage: Storage, sampler: object) -> int:

@@ -13,7 +13,15 @@ from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
 from gchgg.graph import EuclideanMetric, Metric
-from gchgg.samplers._storage import check_sampleable, dump_state, generator, init_signature, load_state, read_field
+from gchgg.samplers._storage import (
+    check_sampleable,
+    dump_state,
+    generator,
+    init_signature,
+    load_state,
+    one_thread,
+    read_field,
+)
 from gchgg.samplers.nearest import check_distances
 from gchgg.samplers.tradeoff import ExponentialTradeoff, Tradeoff, as_tradeoff
 from gchgg.validation import check_number
@@ -109,6 +117,7 @@ class CherSampler(Sampler):
         self.neighbours = neighbours
         self.subset_size = subset_size
 
+    @one_thread
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         n = check_sampleable(storage, self)
         if self.pool_size < batch_size + self.subset_size - 1:

@@ -24,6 +24,7 @@ from gchgg.samplers._storage import (
     generator,
     init_signature,
     load_state,
+    one_thread,
     read_field,
 )
 from gchgg.samplers.energy import EnergySampler
@@ -39,16 +40,45 @@ ON_WRITE = ("keep", "redraw")  # what a write does to the candidates drawn ahead
 
 @dataclass
 class _Pool:
-    """Scored candidate batches of the next samples: indices ``[A, K, B]``, F_div and F_prox ``[A, K]``."""
+    """Scored candidate batches of the next samples, in draw order: indices ``[C, B]``, F_div and F_prox
+    ``[C]`` (C = draw_ahead · K). Without writes, sample j gets candidates j·K … j·K + K − 1."""
 
     index: torch.Tensor
     diversity: torch.Tensor
     proximity: torch.Tensor
+    per_sample: int  # K
     batch_size: int
     stored: int  # len(storage) when drawn
     rng_state: torch.Tensor  # the generator's state before the draw: the pool can be drawn again from it
-    next: int = 0
-    written: list = field(default_factory=list)  # rows written since the draw (on_write="keep")
+    next: int = 0  # candidates before this position are used or skipped
+    written: list = field(default_factory=list)  # rows written since the last sample (on_write="keep")
+    notified: bool = False  # a write was reported since the draw
+    usable: torch.Tensor | None = None  # [C] bool: holds no row written since the draw (None: all do)
+
+    def take(self, marks: torch.Tensor) -> slice | torch.Tensor | None:
+        """Positions of the next K candidates that hold no row written since the draw, a slice while no
+        candidate was skipped (``None`` if fewer than K are left). ``marks``: all-False bool scratch,
+        one per storage row (left all False)."""
+        if self.written:  # skip the candidates the writes reached
+            rows, self.written = torch.cat(self.written), []
+            marks[rows] = True
+            touched = marks[self.index[self.next :]].any(-1)  # a gather: faster than isin here
+            marks[rows] = False
+            if bool(touched.any()):
+                if self.usable is None:
+                    self.usable = torch.ones(len(self.index), dtype=torch.bool)
+                self.usable[self.next :] &= ~touched
+        k = self.per_sample
+        if self.usable is None:
+            if self.next + k > len(self.index):
+                return None
+            self.next += k
+            return slice(self.next - k, self.next)
+        ahead = self.usable[self.next :].nonzero().view(-1)[:k].add_(self.next)
+        if len(ahead) < k:
+            return None
+        self.next = int(ahead[-1]) + 1
+        return ahead
 
 
 @init_signature
@@ -116,13 +146,15 @@ class GraphCurriculumSampler(Sampler):
     same indices (without ``energy_key``, the candidates of the next ``draw_ahead`` samples are
     exactly ``torch.randint(len(storage), (draw_ahead, K, B), generator=buffer_generator)``).
     A write to the buffer (``extend``/``add``/``mark_update``) between samples does, with
-    ``on_write="keep"`` (the default), not throw every candidate away: at each sample, the
-    candidates of that sample that hold a row written since they were drawn are drawn and scored
-    afresh from the buffer as it is now; the others are used as drawn. So a loop that writes before
-    every sample pays for the few candidates its writes touched, not a whole ``draw_ahead`` pool;
-    the price is that a kept candidate comes from the buffer as it was at the draw (rows new to
-    the storage, or energies changed elsewhere, count from the next draw on, at most
-    ``draw_ahead − 1`` samples later).
+    ``on_write="keep"`` (the default), not throw the candidates away: the candidates drawn ahead
+    that hold a row written since their draw are skipped, and each sample takes the next K that
+    hold none (a pool is drawn when fewer than K are left). A chosen batch is therefore always
+    scored on its rows as they are, a write costs a gather over the pool's indices, and a loop that
+    writes before every sample draws a pool every few samples instead of at every one
+    (``benchmarks/samplers.py`` prints the loop against uniform sampling). The price: the pool
+    comes from the buffer as it was at the draw, so rows written (or new to the storage, or whose
+    energy changed) since the draw enter the candidates with the next pool, at most
+    ``draw_ahead − 1`` samples later.
     ``on_write="redraw"`` (what gchgg's training uses) drops the candidates drawn before any write,
     so every batch is drawn from the buffer as it is when sampled. The sampler's ``state_dict``
     (and so TorchRL's ``dumps``) keeps the generator state the current candidates were drawn from
@@ -136,8 +168,8 @@ class GraphCurriculumSampler(Sampler):
     (rows the buffer reports through ``extend``/``add``/``mark_update``, and rows new to the
     storage), and kept in a float32 ``[n, d + 4]`` tensor for d-D goals (28 bytes per stored row
     for 3-D goals; ``[n, 2·d + 4]`` with the goal itself for a diversity metric without a lattice,
-    which reads goals; EBP candidates add
-    the energies' float64 copy, 8 bytes per row, see :class:`EnergySampler`); ``sample`` then
+    which reads goals; plus one byte per row of scratch for the writes "Drawing ahead" skips; EBP
+    candidates add the energies' float64 copy, 8 bytes per row, see :class:`EnergySampler`); ``sample`` then
     reads neither goals nor targets from the storage and snaps no goal. Rows overwritten behind
     the sampler's back (TorchRL's ``buffer[index] = ...``, or another buffer writing into a full
     shared storage) keep stale entries until reported with ``sampler.mark_update(index)``.
@@ -252,16 +284,17 @@ class GraphCurriculumSampler(Sampler):
         self._width = self._to_target = 0
         # Per stored row: the goal's shortlist point and goal-to-target distance, valid as _written says.
         self._rows: torch.Tensor | None = None
+        self._marks: torch.Tensor | None = None  # one bool per stored row, all False: scratch of _Pool.take
         self._written = WrittenRows()
-        self._pool: _Pool | None = None  # scored candidates of the next samples, dropped at every write
+        self._pool: _Pool | None = None  # scored candidates of the next samples (see "Drawing ahead")
         self._saved_pool: dict | None = None  # a loaded state's pool, drawn again at the next sample
 
     @property
     def cache_bytes(self) -> int:
-        """Bytes of the per-row caches, sized to the storage's capacity at the first sample: 4·(d + 4) per row
-        for d-D goals (28 for 3-D; 4·(2·d + 4) for a diversity metric without a lattice), and 8 more with
-        EBP candidates (their energies)."""
-        rows = 0 if self._rows is None else self._rows.numel() * self._rows.element_size()
+        """Bytes of the per-row caches, sized to the storage's capacity at the first sample: 4·(d + 4) + 1 per
+        row for d-D goals (29 for 3-D; 4·(2·d + 4) + 1 for a diversity metric without a lattice), and 8 more
+        with EBP candidates (their energies)."""
+        rows = 0 if self._rows is None else self._rows.numel() * self._rows.element_size() + len(self._marks)
         return rows + (0 if self._energy is None else self._energy.cache_bytes)
 
     def stop_curriculum(self) -> None:
@@ -280,22 +313,21 @@ class GraphCurriculumSampler(Sampler):
     def neighbours(self, value: int | None) -> None:
         self._nearest.neighbours = value
 
+    @one_thread
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         n = check_sampleable(storage, self)
         if self._saved_pool is not None:
             self._pool = self._restore_pool(storage, n, batch_size)
-        pool = self._pool
+        pool, ahead = self._pool, None
         if (
-            pool is None
-            or pool.next == len(pool.index)
-            or (pool.batch_size, pool.index.shape[1]) != (batch_size, self.num_candidates)
-            or pool.stored > n
-            or (pool.stored < n and not pool.written)  # the storage changed without a write we were told of
+            pool is not None
+            and (pool.batch_size, pool.per_sample) == (batch_size, self.num_candidates)
+            and (pool.stored == n or (pool.stored < n and pool.notified))  # else: changed without a write we heard of
         ):
+            ahead = pool.take(self._marks)
+        if ahead is None:  # no pool, or too few usable candidates left in it
             pool = self._pool = self._score(storage, n, batch_size)
-        ahead, pool.next = pool.next, pool.next + 1
-        if pool.written:  # on_write="keep": rescore this sample's candidates if a row of theirs was rewritten
-            self._rescore_written(storage, pool, ahead, n)
+            ahead = pool.take(self._marks)
         lam = float(self.tradeoff.value)  # read now: λ may change between samples of one pool
         diversity, proximity = pool.diversity[ahead], pool.proximity[ahead]
         div_term, prox_term = curriculum_objective(diversity, proximity, lam, self.scale)
@@ -308,53 +340,40 @@ class GraphCurriculumSampler(Sampler):
             "proximity_spread": prox_term.std(correction=0),
             "diversity_decided": torch.tensor(float(best != int(torch.argmax(proximity)))),
         }
-        return pool.index[ahead, best], info
+        chosen = ahead.start + best if isinstance(ahead, slice) else int(ahead[best])
+        return pool.index[chosen], info
 
     def _score(self, storage: Storage, n: int, b: int, rng: torch.Generator | None = None) -> _Pool:
         """Draw and score the candidate batches of the next ``draw_ahead`` samples (with the buffer's
         generator, or ``rng`` to draw a saved pool again)."""
         rng = generator(self) if rng is None else rng
         rng_state = rng.get_state()
-        index = self._draw(storage, n, (self.draw_ahead, self.num_candidates, b), rng)
+        k = self.num_candidates
+        index = self._draw(storage, n, (self.draw_ahead * k, b), rng)
         diversity, proximity = self._objectives(storage, index, n)
-        return _Pool(index, diversity, proximity, b, n, rng_state)
+        return _Pool(index, diversity, proximity, k, b, n, rng_state)
 
     def _draw(self, storage: Storage, n: int, shape: tuple[int, ...], rng: torch.Generator) -> torch.Tensor:
-        """Candidate row indices of ``shape`` (``[A, K, B]``): EBP with ``energy_key``, else uniform."""
+        """Candidate row indices of ``shape`` (``[C, B]``): EBP with ``energy_key``, else uniform."""
         if self._energy is not None:
             self._energy._rng = rng
             return self._energy.draw(storage, *shape)
         return torch.randint(n, shape, generator=rng)
 
-    def _objectives(
-        self, storage: Storage, index: torch.Tensor, n: int, only: torch.Tensor | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """F_div and F_prox ``[A, K]`` of the candidate batches ``index`` ``[A, K, B]`` (F_div only of the
-        candidates ``only`` selects, a bool ``[A, K]``, when given: ``[M]``)."""
-        # [A, K, B, d + 4 (+ d)]: shortlist point, goal-to-target distance (goal)
+    def _objectives(self, storage: Storage, index: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """F_div and F_prox ``[C]`` of the candidate batches ``index`` ``[C, B]``."""
+        # [C, B, d + 4 (+ d)]: shortlist point, goal-to-target distance (goal)
         rows = self._stored_rows(storage, index, n)
-        proximity = -self._finite(rows[..., self._to_target]).sum(-1)  # eq. 15 with C = 0, [A, K]
-        scored = rows if only is None else rows[only]
-        return self._diversity(scored.view(-1, *rows.shape[2:])).view(scored.shape[:-2]), proximity
+        to_target = rows[..., self._to_target].view(-1, self.num_candidates, index.shape[-1])  # [A, K, B]
+        proximity = -self._finite(to_target).sum(-1).view(-1)  # eq. 15 with C = 0
+        return self._diversity(rows), proximity
 
     def _diversity(self, rows: torch.Tensor) -> torch.Tensor:
         """F_div ``[C]`` of C candidate batches from their cached rows ``[C, B, width]``."""
-        c, b, _ = rows.shape
         to_target = self._to_target
         goals = None if self._nearest.snaps else rows[..., to_target + 1 :]
         nearest = self._nearest.from_points(rows[..., :to_target], goals)
         return nearest.nan_to_num(posinf=0.0).sum(-1)  # eq. 19: no finite neighbour adds nothing
-
-    def _rescore_written(self, storage: Storage, pool: _Pool, ahead: int, n: int) -> None:
-        """Sample ``ahead``'s candidates that hold a row written since the pool was drawn are drawn and
-        scored afresh (from the buffer as it is now); the others are kept as scored."""
-        index = pool.index[ahead]  # [K, B]
-        touched = torch.isin(index, torch.cat(pool.written)).any(-1)  # [K]
-        if not bool(touched.any()):
-            return
-        index[touched] = self._draw(storage, n, (int(touched.sum()), pool.batch_size), generator(self))
-        diversity, proximity = self._objectives(storage, index.unsqueeze(0), n, touched.unsqueeze(0))
-        pool.diversity[ahead, touched], pool.proximity[ahead] = diversity, proximity[0]
 
     def _restore_pool(self, storage: Storage, n: int, b: int) -> _Pool | None:
         """The pool a loaded state was in the middle of, drawn again from its saved generator state
@@ -365,7 +384,7 @@ class GraphCurriculumSampler(Sampler):
         rng = torch.Generator()
         rng.set_state(torch.frombuffer(bytearray(base64.b64decode(saved["rng_state"])), dtype=torch.uint8))
         pool = self._score(storage, n, b, rng)
-        pool.next = int(saved["next"])
+        pool.next = int(saved["next"]) * pool.per_sample
         return pool
 
     def _finite(self, distance: torch.Tensor) -> torch.Tensor:
@@ -407,6 +426,7 @@ class GraphCurriculumSampler(Sampler):
             self._to_target = points.shape[-1]
             self._width = self._to_target + 1 + (0 if self._nearest.snaps else diverse.shape[-1])
             self._rows = torch.empty(max(n, int(getattr(storage, "max_size", n) or n)), self._width)
+            self._marks = torch.zeros(len(self._rows), dtype=torch.bool)  # scratch of _Pool.take
         cache, to_target = self._rows, self._to_target
         cache[fresh, :to_target] = points
         cache[fresh, to_target] = distance
@@ -434,6 +454,7 @@ class GraphCurriculumSampler(Sampler):
         rows = torch.as_tensor(index) if isinstance(index, (int, torch.Tensor)) else None
         if self.on_write == "keep" and pool is not None and rows is not None and not rows.is_floating_point():
             pool.written.append(rows.reshape(-1).long())
+            pool.notified = True
         else:
             self._pool = None
         self._written.mark(index)
@@ -478,14 +499,14 @@ class GraphCurriculumSampler(Sampler):
         pool = self._pool
         if pool is None or pool.next == len(pool.index):
             return self._saved_pool
-        if pool.written:  # rescored since the draw: drawing again would not give these candidates
+        if pool.notified:  # written since the draw: drawing again would not give the candidates to skip
             return None
         return {
             "rng_state": base64.b64encode(pool.rng_state.numpy().tobytes()).decode("ascii"),
-            "next": pool.next,
+            "next": pool.next // pool.per_sample,  # samples taken
             "batch_size": pool.batch_size,
             "stored": pool.stored,
-            "num_candidates": int(pool.index.shape[1]),
+            "num_candidates": pool.per_sample,
         }
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:

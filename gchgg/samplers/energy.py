@@ -19,6 +19,7 @@ from gchgg.samplers._storage import (
     generator,
     init_signature,
     load_state,
+    one_thread,
     read_field,
 )
 from gchgg.validation import check_number
@@ -114,6 +115,7 @@ class EnergySampler(Sampler):
         """Bytes of the per-row energy copy (8 per row of the storage's capacity, from the first sample)."""
         return 0 if self._energy is None else self._energy.numel() * self._energy.element_size()
 
+    @one_thread
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         return self.draw(storage, batch_size), {}
 

@@ -25,6 +25,8 @@ _GRAPH_TOLERANCE = 1e-3  # metres: slack on a graph's straight-line bounds, besi
 _RELATIVE_TOLERANCE = 1e-5  # slack on straight-line bounds between goals, per metre of their coordinates (>= 1 m)
 _LEVEL_SLACK = 2  # levels added to every squared distance so float32 rounding never makes one negative
 _INT32_MAX = 2**31 - 1
+_MIN_STRIDE = 128  # the levels of narrower windows are those of a 128-wide one (see _levels)
+_REPEATS_FIRST = 8  # goals are reordered heads first when more than 1 in this many repeat another
 _SWAP = torch.tensor([0, 1, 2, 4, 3])  # point columns (x, y, z, |p|², 1) -> (x, y, z, 1, |p|²), 3-D goals
 
 
@@ -209,54 +211,92 @@ class NearestNeighbours:
 
         if self._snap:
             self._setup_graph()
-        # Sorted along the axis, neighbours in space are mostly neighbours in the order.
-        order = torch.from_numpy(np.argsort(points[..., self._axis].numpy(), -1))  # faster than torch's here
+        # Sorted along the axis, neighbours in space are mostly neighbours in the order; equal goals
+        # (an object at rest repeats its position; for a graph: goals at one vertex) end up side by side.
+        if self._snap:  # goals at one vertex side by side (many vertices share a coordinate)
+            order = _sort_order(points[..., self._axis], points[..., ident])
+        else:  # equal goals have equal coordinates: a plain sort puts them side by side (but for exact ties)
+            order = torch.from_numpy(np.argsort(points[..., self._axis].numpy(), -1))  # faster than torch's here
         points = points.gather(1, order.unsqueeze(-1).expand(points.shape))
         if goals is not None and not self._snap:
             goals = goals.gather(1, order.unsqueeze(-1).expand(k, b, goals.shape[-1]))
         vertex = points[..., ident].long()  # [K, B]: -1 off the graph (and 0 for other metrics)
-        pair = self._pairs(vertex, goals)
-        cols, bound = self._shortlist(points, m)  # sorted positions [K, B, m], lower bound [K, B] on the rest
-        if self._snap:  # the same lookup as pair(rows, cols, batch), with fewer index operations
-            candidates = vertex.gather(1, cols.reshape(k, b * m)).view(k, b, m)
-            nearest = self._lookup(vertex.unsqueeze(-1), candidates).amin(-1)  # [K, B]
-        else:
-            others = goals.gather(1, cols.reshape(k, b * m, 1).expand(k, b * m, goals.shape[-1])).view(k, b, m, -1)
-            nearest = check_distances(self.metric.distance(goals.unsqueeze(2), others), "diversity metric", (k, b, m))
-            nearest = nearest.amin(-1)
-        # A goal equal to the goal sorted before it (an object at rest repeats its position; for a
-        # graph: at the same vertex) is as far from every goal as that one: the pair is read (0 for
-        # any metric, inf off a graph), and later only the first goal of such a run is a candidate.
+        # A goal equal to the goal sorted before it (a *repeat*) is as far from every goal as the first
+        # goal of its run (its *head*): only heads are searched (a run would fill shortlists with ties
+        # and windows with goals at one spot), and a repeat's pair with its head is read (0 for any
+        # metric, inf off a graph).
         repeat = torch.zeros(k, b, dtype=torch.bool)
         if self._snap:  # the same vertex (or both off the graph): the same distances
             repeat[:, 1:] = vertex[:, 1:] == vertex[:, :-1]
         else:  # the same goal, bit for bit (points are rounded relative positions)
             repeat[:, 1:] = (goals[:, 1:] == goals[:, :-1]).all(-1)
+        positions = torch.arange(b).expand(k, b)
+        head = torch.where(repeat, 0, positions).cummax(1).values  # sorted position of each goal's head
+        h, reordered = b, int(repeat.sum()) * _REPEATS_FIRST > k * b
+        if reordered:  # many repeats (an object at rest): heads first (in axis order), then the repeats,
+            # and the search covers the heads only (few repeats are just left out of the shortlists)
+            first = torch.argsort(repeat.to(torch.uint8), dim=1, stable=True)
+            order = order.gather(1, first)
+            points = points.gather(1, first.unsqueeze(-1).expand(points.shape))
+            if goals is not None and not self._snap:
+                goals = goals.gather(1, first.unsqueeze(-1).expand(goals.shape))
+            vertex = vertex.gather(1, first)
+            rank = torch.empty_like(first).scatter_(1, first, positions)  # old sorted position -> new one
+            head = rank.gather(1, head.gather(1, first))
+            heads = int((~repeat).sum(1).max())
+            repeat = positions >= (~repeat).sum(1, keepdim=True)
+            h = min(b, -(-heads // self.block) * self.block)  # rounded up: few distinct block layouts
+        axis = points[..., self._axis]
+        if reordered:  # the repeats after the heads count as beyond every head
+            axis = axis.masked_fill(repeat, math.inf)
+        pair = self._pairs(vertex, goals)
+        searched, excluded, axis_h = points[:, :h], repeat[:, :h], axis[:, :h]
+        if h - 1 <= m:  # a few heads: all their pairs
+            distance = pair(torch.arange(h).view(1, h, 1), torch.arange(h).view(1, 1, h), torch.arange(k).view(k, 1, 1))
+            distance = distance.masked_fill(excluded.unsqueeze(1) | torch.eye(h, dtype=torch.bool), math.inf)
+            nearest, bound = distance.amin(-1), torch.full((k, h), math.inf)
+        else:
+            # sorted positions [K, h, m] (-1: no candidate), lower bound [K, h] on the distance to the rest
+            cols, bound = self._shortlist(searched, m, excluded, axis_h)
+            found = cols >= 0
+            cols = cols.clamp(min=0)
+            if self._snap:  # the same lookup as pair(rows, cols, batch), with fewer index operations
+                candidates = vertex.gather(1, cols.reshape(k, h * m)).view(k, h, m)
+                nearest = self._lookup(vertex[:, :h].unsqueeze(-1), candidates)  # [K, h, m]
+            else:
+                goals_h = goals[:, :h]
+                others = goals_h.gather(1, cols.reshape(k, h * m, 1).expand(k, h * m, goals.shape[-1]))
+                nearest = check_distances(self.metric.distance(goals_h.unsqueeze(2), others.view(k, h, m, -1)),
+                                          "diversity metric", (k, h, m))
+            nearest = nearest.masked_fill(~found, math.inf).amin(-1)  # [K, h]
         kk, ii = repeat.nonzero(as_tuple=True)
-        if len(kk):
-            twin = pair(ii, ii - 1, kk)
-            nearest = nearest.index_put((kk, ii), torch.minimum(nearest[kk, ii], twin))
-            nearest = nearest.index_put((kk, ii - 1), torch.minimum(nearest[kk, ii - 1], twin))
+        twin = pair(ii, head[kk, ii], kk) if len(kk) else None  # each repeat with its head
+        if twin is not None:  # a head with repeats is that far from them
+            flat = nearest.reshape(-1).scatter_reduce(0, kk * h + head[kk, ii], twin, reduce="amin")
+            nearest = flat.view(k, h)
         # Proven where the shortlist beats every goal outside it (a distance of 0, a duplicate goal,
         # always does). For the others, only goals nearer in a straight line than the best distance
         # so far can be nearer: read those (usually a handful) from the metric too.
-        unproven = nearest > bound
+        unproven = (nearest > bound) & ~excluded
         if self._snap:
-            unproven &= vertex >= 0  # an off-graph goal is inf from everything
+            unproven &= vertex[:, :h] >= 0  # an off-graph goal is inf from everything
         if stats is not None:
             stats["rescored"] = int(unproven.sum())
         if bool(unproven.any()):
             # first the goals within two windows' reach in the sorted order (the nearest one is almost
             # always just outside the window), then, for the few still unproven, all of them
             reach = 2 * self.span * self.block
-            nearest, unproven = self._rescore(points, repeat, unproven, nearest, pair, reach)
+            nearest, unproven = self._rescore(searched, excluded, axis_h, unproven, nearest, pair, reach)
             if bool(unproven.any()):
-                nearest, _ = self._rescore(points, repeat, unproven, nearest, pair, points.shape[1])
+                nearest, _ = self._rescore(searched, excluded, axis_h, unproven, nearest, pair, h)
+        if twin is not None:  # a repeat: its head's nearest other goal, or the head itself
+            nearest = torch.cat([nearest, nearest.new_full((k, b - h), math.inf)], 1)
+            nearest = nearest.index_put((kk, ii), torch.minimum(twin, nearest[kk, head[kk, ii]]))
         return torch.empty_like(nearest).scatter_(1, order, nearest)
 
     def _rescore(
-        self, points: torch.Tensor, repeat: torch.Tensor, unproven: torch.Tensor, nearest: torch.Tensor, pair,
-        reach: int,
+        self, points: torch.Tensor, repeat: torch.Tensor, axis: torch.Tensor, unproven: torch.Tensor,
+        nearest: torch.Tensor, pair, reach: int,
     ):
         """The unproven goals' entries of ``nearest`` [K, B] read against every goal within ``reach`` sorted
         positions either side that is nearer in a straight line than the best distance found, except
@@ -277,7 +317,7 @@ class NearestNeighbours:
             term = plane.index_select(0, at).view(cols.shape).sub_(plane.index_select(0, own).unsqueeze(1)).square_()
             straight = term if straight is None else straight.add_(term)
         straight.sqrt_().sub_(self._tolerance()).masked_fill_(cols == ii.unsqueeze(1), math.inf)  # not itself
-        straight.masked_fill_(repeat.view(-1).index_select(0, at).view(cols.shape), math.inf)
+        straight.masked_fill_(repeat.reshape(-1).index_select(0, at).view(cols.shape), math.inf)
         # First the straight-line nearest goal: for a metric close to the straight line its distance
         # is (almost) the answer and leaves few goals to read below; clustered goals (an object at
         # rest) would otherwise have most of the range read.
@@ -291,7 +331,6 @@ class NearestNeighbours:
             best = best.scatter_reduce(0, uu, pair(ii[uu], cols[uu, ww], kk[uu]), reduce="amin")
             nearest = nearest.index_put((kk, ii), best)
         # goals beyond the range are at least the gap along the axis away
-        axis = points[..., self._axis]
         ends = torch.cat([axis.new_full((k, 1), -math.inf), axis, axis.new_full((k, 1), math.inf)], 1)
         x = axis[kk, ii]
         gap = torch.minimum(x - ends[kk, (ii - reach).clamp(min=0)], ends[kk, (ii + reach + 2).clamp(max=b + 1)] - x)
@@ -332,10 +371,14 @@ class NearestNeighbours:
             return _GRAPH_TOLERANCE + 0.5 * float(self._graph.resolution)
         return _RELATIVE_TOLERANCE * max(1.0, self._scale)
 
-    def _shortlist(self, points: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """For points sorted along the axis ``[K, B, d + 3]``: each one's m nearest others in its window, as
-        sorted positions ``[K, B, m]``, and a lower bound in metres ``[K, B]`` on its straight-line
-        distance to every other goal (outside the window: the gap along the axis)."""
+    def _shortlist(
+        self, points: torch.Tensor, m: int, repeat: torch.Tensor, axis: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """For points sorted along the axis ``[K, B, d + 3]``: each one's m nearest others in its window
+        that are not ``repeat`` ones (``[K, B]``, equal to the goal sorted before them), as sorted
+        positions ``[K, B, m]`` (-1 where the window has fewer candidates), and a lower bound in metres
+        ``[K, B]`` on its straight-line distance to every other non-repeat goal (outside the window:
+        the gap along the axis)."""
         k, b, size_of_point = points.shape
         dim = size_of_point - 3  # goal dimension d; columns (p, |p|², 1, id)
         layout = self._layout(b, m)
@@ -366,6 +409,12 @@ class NearestNeighbours:
         # and padding columns.
         blocked = keys.view(k, blocks, size, width)
         torch.add(layout["offset"], blocked, alpha=stride, out=blocked)
+        excluded = layout["excluded"]  # the key of an excluded column: above every pair's
+        if bool(repeat.any()):  # repeat columns are excluded too
+            flags = repeat.new_zeros(k, rows + 2 * pad)
+            flags[:, pad : pad + b] = repeat
+            bump = flags.unfold(1, width, size).unsqueeze(2) * excluded  # [K, blocks, 1, W]: 0 or the excluded key
+            torch.maximum(blocked, bump, out=blocked)  # an excluded key keeps its column bits
         flat, mask = keys.view(-1), stride - 1
         starts = self._row_starts(k * blocks * size, width).view(k * blocks, size, 1)  # flat index of each row
         nearest = []
@@ -373,13 +422,14 @@ class NearestNeighbours:
             low = keys.amin(-1, keepdim=True)  # [K·blocks, size, 1]
             nearest.append(low)
             flat.index_fill_(0, torch.add(starts, low.bitwise_and(mask)).view(-1), _INT32_MAX)
-        cols = torch.cat(nearest, -1).bitwise_and_(mask).long().view(k, rows, m)
+        low = torch.cat(nearest, -1)
+        cols = low.bitwise_and(mask).long().view(k, rows, m)
         cols = cols[:, :b].add_(layout["first"])  # window column -> sorted position
+        cols.masked_fill_(low.view(k, rows, m)[:, :b] >= excluded[0], -1)  # the window ran out of candidates
         bound = _distance(keys.amin(-1).view(k, rows)[:, :b].bitwise_right_shift_(stride.bit_length() - 1), quantum)
-        # Goals outside the window are at least the gap along the axis away.
-        axis = points[..., self._axis]
+        # Goals outside the window are at least the gap along the axis away (``axis``: +inf for repeats).
         ends = torch.cat([axis.new_full((k, 1), -math.inf), axis, axis.new_full((k, 1), math.inf)], 1)
-        gap = torch.minimum(axis - ends[:, layout["before"]], ends[:, layout["after"]] - axis)
+        gap = torch.minimum(axis - ends[:, layout["before"]], ends[:, layout["after"]] - axis).masked_fill_(repeat, 0.0)
         return cols, torch.minimum(bound, gap).sub_(self._tolerance()).clamp_(min=0.0)
 
     def _layout(self, b: int, m: int) -> dict[str, Any]:
@@ -404,7 +454,8 @@ class NearestNeighbours:
         # (levels + slack + 1) · S; excluded entries (level <= slack + 1: the goal itself, padding) get
         # (levels + 2·slack + 2) · S more, which keeps them above every pair and below int32 max.
         stride = 1 << (width - 1).bit_length()
-        offset = column.expand(blocks, size, width) + excluded * ((_levels(stride) + 2 * _LEVEL_SLACK + 2) * stride)
+        exclusion = (_levels(stride) + 2 * _LEVEL_SLACK + 2) * stride
+        offset = column.expand(blocks, size, width) + excluded * exclusion
         position = torch.arange(b)
         start = (position // size) * size - pad  # sorted position of the window's first column
         if pad:
@@ -419,6 +470,7 @@ class NearestNeighbours:
             "width": width,
             "stride": stride,
             "offset": offset.to(torch.int32).contiguous(),
+            "excluded": (exclusion + column.view(width)).to(torch.int32),  # an excluded column's key
             "first": start.view(1, b, 1),
             "before": before,
             "after": after,
@@ -450,9 +502,24 @@ class NearestNeighbours:
         return buffer
 
 
+def _sort_order(primary: torch.Tensor, secondary: torch.Tensor) -> torch.Tensor:
+    """Indices ``[K, B]`` that sort each row by the float32 ``primary``, ties by ``secondary`` (float32):
+    one argsort of int64 keys (the floats' bits made monotone), ~10x faster than ``np.lexsort`` here."""
+    def monotone(x: torch.Tensor) -> np.ndarray:  # int32 bits that order as the floats do (-0.0 just below 0.0)
+        bits = x.contiguous().numpy().view(np.int32)
+        return np.where(bits >= 0, bits, bits ^ np.int32(0x7FFFFFFF)).astype(np.int64)
+
+    keys = (monotone(primary) << 32) | (monotone(secondary) & 0xFFFFFFFF)
+    return torch.from_numpy(np.argsort(keys, -1))
+
+
 def _levels(stride: int) -> int:
-    """Squared-distance levels for keys ``level · stride + column`` (room is left for excluded entries)."""
-    return _INT32_MAX // stride - 4 * _LEVEL_SLACK - 4
+    """Squared-distance levels for keys ``level · stride + column`` (room is left for excluded entries).
+
+    At most ~2**24 (what a stride of 128 gives): a float32 product holds levels exactly only up to
+    there, and beyond it the rounding of a goal's distance to itself could exceed the room left for
+    excluded entries (narrow windows, stride < 128, would otherwise get up to 2**28 levels)."""
+    return _INT32_MAX // max(stride, _MIN_STRIDE) - 4 * _LEVEL_SLACK - 4
 
 
 def _distance(level: torch.Tensor, quantum: float) -> torch.Tensor:
