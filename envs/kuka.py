@@ -68,6 +68,20 @@ class Physics(mujoco.Physics):
     def hand_position(self) -> np.ndarray:
         return self.data.xpos[self._hand]
 
+    def arm_joints(self) -> np.ndarray:
+        """The seven arm joint angles in radians (a copy)."""
+        return self.data.qpos[self._arm_qpos].copy()
+
+    def set_arm_joints(self, angles) -> None:
+        self.data.qpos[self._arm_qpos] = angles
+
+    def set_finger_positions(self, opening) -> None:
+        """Each finger's opening in metres (one value for both, or one each)."""
+        self.data.qpos[self._finger_qpos] = opening
+
+    def hand_quaternion(self) -> np.ndarray:
+        return self.data.xquat[self._hand]
+
     def finger_positions(self) -> np.ndarray:
         """Opening of each finger in metres, 0 (closed) to 0.0425 (open)."""
         return self.data.qpos[self._finger_qpos]
@@ -185,18 +199,17 @@ class KukaTask(base.Task):
         name = (self.geometry.name, self.geometry.gripper_start)
         if name not in _START_POSE:
             base = physics.model.body("base").pos
-            physics.data.qpos[physics._arm_qpos] = _start_joints(base, np.asarray(self.geometry.gripper_start))
+            physics.set_arm_joints(_start_joints(base, np.asarray(self.geometry.gripper_start)))
             physics.forward()
-            _START_POSE[name] = (physics.data.qpos[physics._arm_qpos].copy(),
-                                 physics.hand_position().copy(), physics.data.xquat[physics._hand].copy())
+            _START_POSE[name] = (physics.arm_joints(), physics.hand_position().copy(), physics.hand_quaternion().copy())
         return _START_POSE[name]
 
     def initialize_episode(self, physics: Physics) -> None:
         """Puts the arm in its start pose and the fingers at their start opening, draws the goal and (where
         there is one) the object's position."""
         qpos, hand_pos, hand_quat = self._start_pose(physics)
-        physics.data.qpos[physics._arm_qpos] = qpos
-        physics.data.qpos[physics._finger_qpos] = self.geometry.finger_start
+        physics.set_arm_joints(qpos)
+        physics.set_finger_positions(self.geometry.finger_start)
         physics.data.qvel[:] = 0.0
         physics.set_mocap(hand_pos, hand_quat)  # dm_control resets the mocap to the model default
         if self.has_object:

@@ -6,6 +6,7 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
+from dm_control.rl import control
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
@@ -62,7 +63,7 @@ class KukaEnv(EnvBase):
         self._physics = [env.physics for env in dm_envs]
         self._tasks = [env.task for env in dm_envs]
         self.geometry = self._tasks[0].geometry  # with the start the options chose
-        self._n_sub_steps = dm_envs[0]._n_sub_steps
+        self._n_sub_steps = control.compute_n_steps(dm_envs[0].control_timestep(), dm_envs[0].physics.timestep())
         task = self._tasks[0]
         self.threshold = task.threshold
         self.obs_dim, self.action_dim, self.has_object = task.obs_dim, task.action_dim, task.has_object

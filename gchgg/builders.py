@@ -207,10 +207,9 @@ def make_goal_generator(
     pool_size: int = 1000,
     c: float = 3.0,
     L: float = 5.0,
-    on_stop: Callable[[], None] | None = None,
 ) -> HGGGoalGenerator | None:
-    """``None`` (episodes go to the target goals) or an HGG goal generator with its trajectory pool;
-    ``on_stop`` is called once when its stop condition switches the run to target goals."""
+    """``None`` (episodes go to the target goals) or an HGG goal generator with its trajectory pool (its
+    results say when its stop condition switches the run to target goals: ``stopped_now``)."""
     check_choice("goal_generator", kind, GOAL_GENERATORS)
     if kind == "none":
         return None
@@ -224,5 +223,4 @@ def make_goal_generator(
         gamma=gamma,
         stop_threshold=stop_threshold,
         success_threshold=success_threshold,
-        on_stop=on_stop,
     )

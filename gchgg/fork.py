@@ -230,8 +230,8 @@ def start(fork: Fork, trainer) -> dict[str, Any]:
     link_replay(fork.source / trainer.replay_log.folder.name, trainer.replay_log.folder, state["replay"])
     trainer.load_state_dict(state)
     generator = trainer.goal_generator
-    if fork.renews_sampler and generator is not None and generator.stopped and generator.on_stop is not None:
-        generator.on_stop()  # HGG stopped in the source: the new sampler stops its curriculum, as the old one had
+    if fork.renews_sampler and generator is not None and generator.stopped and trainer.cfg.algo.sampler == "curriculum":
+        trainer.sampler.stop_curriculum()  # HGG stopped in the source: the new sampler stops its curriculum too
     record = fork.record()
     OmegaConf.save(OmegaConf.create(record), trainer.run_dir / RECORD)
     changes = ", ".join(f"{k}: {old!r} -> {new!r}" for k, (old, new) in fork.changes.items()) or "none"

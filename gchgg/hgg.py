@@ -113,6 +113,11 @@ class TrajectoryPool:
         return self._size
 
     @property
+    def storage_device(self) -> torch.device | None:
+        """Where the trajectories are kept: ``device`` if given, else that of the first ones added (``None`` before)."""
+        return self._goals.device if self._goals is not None else self.device
+
+    @property
     def achieved_goals(self) -> torch.Tensor:
         """float32 ``[len(self), T + 1, 3]``: the stored trajectories (storage order, not age order)."""
         if self._goals is None:
@@ -227,6 +232,9 @@ class GoalGeneration:
         d_g: D_G(T, T*) of eq. 21, ``distance.mean()``.
         inside_fraction: fraction of goals within ``success_threshold`` (Euclidean) of some target.
         from_pool: True if every goal came from the pool (the stop condition is checked only then).
+        stopped_now: True if this call's goals met the stop condition: from the next call on the
+            generator returns the targets themselves, and the caller switches what depends on HGG
+            running (GC-HGG's curriculum sampler to plain sampling, as the training loop does).
         timings: seconds spent in ``"value"`` (networks), ``"distance"`` (metric), ``"cost"``
             (eqs. 6–7) and ``"matching"``, and ``"total"``.
     """
@@ -240,6 +248,7 @@ class GoalGeneration:
     d_g: float
     inside_fraction: float
     from_pool: bool
+    stopped_now: bool = False
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -315,7 +324,6 @@ class HGGGoalGenerator:
         infinite_distance: float = INFINITE_DISTANCE,
         small_pool: Literal["repeat", "targets"] = "repeat",
         value_batch_size: int = 4096,
-        on_stop: Callable[[], None] | None = None,
     ) -> None:
         if not isinstance(metric, Metric):
             raise TypeError(
@@ -347,7 +355,6 @@ class HGGGoalGenerator:
         self.small_pool = small_pool
         self.value_batch_size = int(value_batch_size)
         self.stopped = False
-        self.on_stop = on_stop
         self._graph = metric.lattice  # a graph's vertex view (pool points deduplicated to vertices), or None
 
     # ------------------------------------------------------------------ public API
@@ -368,8 +375,8 @@ class HGGGoalGenerator:
         Returns:
             A :class:`GoalGeneration`. The targets themselves (``from_pool`` False, D_G 0) if the
             pool is empty or the generator has stopped. Otherwise, if ``from_pool`` and the fraction
-            of goals near a target exceeds ``stop_threshold``, :attr:`stopped` becomes True and
-            every later call returns the targets.
+            of goals near a target exceeds ``stop_threshold``, :attr:`stopped` becomes True (and
+            the result's ``stopped_now``) and every later call returns the targets.
 
         Raises:
             ValueError: mismatched shapes; non-finite goals; a value function returning the wrong
@@ -445,7 +452,7 @@ class HGGGoalGenerator:
     # ------------------------------------------------------------------ steps
 
     def _check_tasks(self, initial: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        device = self.pool._goals.device if self.pool._goals is not None else None
+        device = self.pool.storage_device
         initial = torch.as_tensor(initial).to(device=device, dtype=torch.float32)
         targets = torch.as_tensor(targets).to(device=device, dtype=torch.float32)
         if targets.ndim != 2 or targets.shape[-1] != 3 or targets.shape[0] < 1:
@@ -520,10 +527,9 @@ class HGGGoalGenerator:
     ) -> GoalGeneration:
         near = _euclidean(goals, targets) <= self.success_threshold  # Euclidean, as the success test
         inside = int(near.any(dim=1).sum()) / goals.shape[0]  # exact fraction: 15 / 50 == 0.3
-        if from_pool and self.stop_threshold is not None and inside > self.stop_threshold and not self.stopped:
-            self.stopped = True
-            if self.on_stop is not None:
-                self.on_stop()  # e.g. the curriculum sampler switches to plain sampling
+        stopped_now = (from_pool and self.stop_threshold is not None and inside > self.stop_threshold
+                       and not self.stopped)
+        self.stopped = self.stopped or stopped_now
         timings = {"value": 0.0, "distance": 0.0, "cost": 0.0, "matching": 0.0, **timings}
         timings["total"] = time.perf_counter() - start
         return GoalGeneration(
@@ -536,6 +542,7 @@ class HGGGoalGenerator:
             d_g=float(distance.double().mean()),
             inside_fraction=inside,
             from_pool=from_pool,
+            stopped_now=stopped_now,
             timings=timings,
         )
 

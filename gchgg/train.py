@@ -236,8 +236,6 @@ class Trainer:
                 pool_size=cfg.hgg.pool_size,
                 c=cfg.hgg.c,
                 L=cfg.hgg.L,
-                # GC-HGG: once HGG stops, the curriculum sampler samples plainly (the original's rule)
-                on_stop=self.sampler.stop_curriculum if algo.sampler == "curriculum" else None,
             )
         self.iteration = 0
         self.env_steps = 0
@@ -270,6 +268,8 @@ class Trainer:
         goals, distances = targets, None
         if self.goal_generator is not None:
             generation = self.goal_generator.generate(starts, targets, self.agent.value)
+            if generation.stopped_now and self.cfg.algo.sampler == "curriculum":
+                self.sampler.stop_curriculum()  # GC-HGG: once HGG stops, plain sampling (the original's rule)
             row["d_g"] = generation.d_g
             goals, distances = generation.goals, generation.tradeoff_distances
         if self.tradeoff is not None:

@@ -270,8 +270,10 @@ def test_stop_condition_fires_above_its_threshold_and_not_at_it(inside, stops):
     assert result.from_pool
     assert result.inside_fraction == inside / 10
     assert generator.stopped is stops
+    assert result.stopped_now is stops  # the result says so: the caller switches what depends on HGG
     after = generator.generate(starts, targets)
     assert after.from_pool is not stops  # once stopped: plain HER, the targets themselves
+    assert not after.stopped_now  # reported once
     if stops:
         assert torch.equal(after.goals, targets)
 

@@ -180,3 +180,21 @@ def test_bad_configuration_fails_before_training_naming_the_setting(override, me
 def test_unknown_env_or_algo_lists_the_choices(override, choice):
     with pytest.raises((MissingConfigException, ConfigCompositionException), match=choice):
         config([override])
+
+
+def test_the_loop_switches_the_curriculum_off_when_hgg_reports_its_stop(tmp_path):
+    """The goal generator only reports the stop (``stopped_now``); the loop switches GC-HGG's sampler."""
+    import dataclasses
+
+    trainer = train.Trainer(config(["env=reach", "algo=gchgg", *tiny(tmp_path, iterations=3)]), tmp_path / "run")
+    generate, calls = trainer.goal_generator.generate, []
+
+    def stops_at_the_second_call(*args, **kwargs):
+        calls.append(None)
+        return dataclasses.replace(generate(*args, **kwargs), stopped_now=len(calls) == 2)
+
+    trainer.goal_generator.generate = stops_at_the_second_call
+    trainer.iteration_step()
+    assert trainer.sampler.num_candidates == trainer.cfg.curriculum.num_candidates > 1
+    trainer.iteration_step()
+    assert trainer.sampler.num_candidates == 1  # plain sampling from the reported stop on

@@ -356,8 +356,7 @@ class GraphCurriculumSampler(Sampler):
     def _draw(self, storage: Storage, n: int, shape: tuple[int, ...], rng: torch.Generator) -> torch.Tensor:
         """Candidate row indices of ``shape`` (``[C, B]``): EBP with ``energy_key``, else uniform."""
         if self._energy is not None:
-            self._energy._rng = rng
-            return self._energy.draw(storage, *shape)
+            return self._energy.draw(storage, *shape, rng=rng)
         return torch.randint(n, shape, generator=rng)
 
     def _objectives(self, storage: Storage, index: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:

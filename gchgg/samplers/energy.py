@@ -119,10 +119,11 @@ class EnergySampler(Sampler):
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         return self.draw(storage, batch_size), {}
 
-    def draw(self, storage: Storage, *shape: int) -> torch.Tensor:
-        """Row indices of the given shape drawn with probability ∝ energy (i.i.d., with replacement)."""
+    def draw(self, storage: Storage, *shape: int, rng: torch.Generator | None = None) -> torch.Tensor:
+        """Row indices of the given shape drawn with probability ∝ energy (i.i.d., with replacement), with
+        ``rng`` (default: the buffer's generator)."""
         n = check_sampleable(storage, self)
-        rng = generator(self)
+        rng = generator(self) if rng is None else rng
         u = torch.rand(shape, dtype=torch.float64, generator=rng)
         runs = self._runs(storage, n)
         if runs is None:  # no episode has energy yet: uniform
