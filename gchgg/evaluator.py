@@ -1,11 +1,16 @@
-"""Evaluation of policy snapshots in a second process, in order, while training goes on (``eval.background``).
+"""Evaluation during training: its schedule and the early-stop rule, and snapshots evaluated in a second process.
 
-The trainer hands over each evaluated iteration's actor (:meth:`gchgg.agent.DDPGAgent.policy_state`)
-and goes on training; a spawned process owns an evaluation env built exactly as the trainer builds
-its own, runs the deterministic episodes and sends back the success rate and the env's random state
-after them. Snapshots are evaluated in the order they were submitted, from the env state the first
-submission after a (re)start carries, so the results are those in-line evaluation would give for
-the same snapshots and seed.
+:class:`EvaluationSchedule` says which iterations end with an evaluation (``eval.every``, and the
+last) and when the evaluations so far stop the run (``train.stop_success`` held for
+``train.stop_patience`` evaluations).
+
+:class:`BackgroundEvaluator` (``eval.background``): the trainer hands over each evaluated
+iteration's actor (:meth:`gchgg.agent.DDPGAgent.policy_state`) and goes on training; a spawned
+process owns an evaluation env built exactly as the trainer builds its own, runs the deterministic
+episodes and sends back the success rate and the env's random state after them. Snapshots are
+evaluated in the order they were submitted, from the env state the first submission after a
+(re)start carries, so the results are those in-line evaluation would give for the same snapshots
+and seed.
 """
 
 from __future__ import annotations
@@ -15,11 +20,48 @@ import queue
 import time
 import traceback
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 
-__all__ = ["BackgroundEvaluator", "env_state", "set_env_state"]
+__all__ = ["BackgroundEvaluator", "EvaluationSchedule", "env_state", "set_env_state"]
+
+
+@dataclass(frozen=True)
+class EvaluationSchedule:
+    """Which iterations end with an evaluation, and when the evaluations so far stop the run.
+
+    Args:
+        iterations: the run's length; its last iteration always evaluates.
+        every: iterations between evaluations (``eval.every``).
+        stop_success: stop once the last ``stop_patience`` evaluations all had a success rate at least
+            this (``train.stop_success``; ``None``: never stop early).
+        stop_patience: evaluations the success rate must hold ``stop_success`` for.
+    """
+
+    iterations: int
+    every: int = 1
+    stop_success: float | None = None
+    stop_patience: int = 5
+
+    def evaluates(self, iteration: int) -> bool:
+        """Whether ``iteration`` ends with an evaluation: every ``every``-th one, and the last."""
+        return (iteration + 1) % self.every == 0 or iteration + 1 == self.iterations
+
+    def reached_stop(self, evaluated: list[dict]) -> bool:
+        """Whether the last ``stop_patience`` of the ``evaluated`` rows (oldest first) all reach ``stop_success``."""
+        recent = evaluated[-self.stop_patience :]
+        return (self.stop_success is not None and len(recent) == self.stop_patience
+                and all(row["success_rate"] >= self.stop_success for row in recent))
+
+    def may_stop_on_pending(self, evaluated: list[dict], pending: bool) -> bool:
+        """Whether an evaluation still in flight (``pending``) could make :meth:`reached_stop` true: the
+        loop then waits for it, so that a run stops where in-line evaluation would have stopped it."""
+        if self.stop_success is None or not pending:
+            return False
+        recent = evaluated[-(self.stop_patience - 1) :] if self.stop_patience > 1 else []
+        return all(row["success_rate"] >= self.stop_success for row in recent)
 
 
 def env_state(env, noise: torch.Generator | None) -> dict[str, Any]:

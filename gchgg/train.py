@@ -22,11 +22,9 @@ All algorithm logic lives in the parts (``envs``, ``gchgg.graph``, ``gchgg.hgg``
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 import os
-import subprocess
 import time
 from functools import partial
 from pathlib import Path
@@ -38,14 +36,13 @@ import hydra  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
-from hydra.types import RunMode  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torchrl.envs import TransformedEnv  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg import checkpoint, fork, loggers  # noqa: E402
+from gchgg import checkpoint, fork, loggers, metrics  # noqa: E402
 from gchgg.agent import DDPGAgent, DDPGConfig  # noqa: E402
 from gchgg.builders import (  # noqa: E402
     check_positive,
@@ -57,11 +54,12 @@ from gchgg.builders import (  # noqa: E402
     make_sampler,
     make_tradeoff,
 )
-from gchgg.evaluator import BackgroundEvaluator, env_state  # noqa: E402
+from gchgg.evaluator import BackgroundEvaluator, EvaluationSchedule, env_state  # noqa: E402
 from gchgg.hgg import estimate_max_distance  # noqa: E402
-from gchgg.linear import MATMUL_BACKENDS, PRECISIONS, resolve_matmul  # noqa: E402
+from gchgg.linear import MATMUL_BACKENDS, PRECISIONS  # noqa: E402
 from gchgg.replay_log import ReplayLog  # noqa: E402
-from gchgg.rollout import collect, evaluate, fraction  # noqa: E402
+from gchgg.rollout import collect, evaluate  # noqa: E402
+from gchgg.run_info import open_loggers, requeued, startup_record  # noqa: E402
 from gchgg.validation import check_choice, check_number  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -237,6 +235,8 @@ class Trainer:
                 c=cfg.hgg.c,
                 L=cfg.hgg.L,
             )
+        self.schedule = EvaluationSchedule(cfg.train.iterations, cfg.eval.get("every", 1), cfg.train.stop_success,
+                                           cfg.train.stop_patience)
         self.iteration = 0
         self.env_steps = 0
         self.history: list[dict[str, float]] = []
@@ -277,7 +277,7 @@ class Trainer:
         lap("goals")
 
         # 3. Chunks: collect with the current policy, store, update the normalisers, train.
-        stats = _IterationStats()
+        stats = metrics.IterationStats()
         warmup_at_start = self.env_steps < cfg.train.warmup_steps
         chunks, n = cfg.train.chunks, self.chunk_size
         for chunk in range(chunks):
@@ -322,7 +322,7 @@ class Trainer:
         lap("store")
 
         # 5. Evaluation on target goals (in-line, or handed to the background evaluator).
-        if self.evaluates(self.iteration):
+        if self.schedule.evaluates(self.iteration):
             if self.evaluator is None:
                 row["success_rate"] = evaluate(self.eval_env, partial(self.agent.act, explore=False), self.steps)
             else:
@@ -443,24 +443,10 @@ class Trainer:
     def write_metrics(self) -> None:
         """Rewrites ``metrics.csv`` from the history (so a resumed run never holds rows twice), up to the
         first row whose background evaluation is still in flight."""
-        rows = self.history
-        if self.eval_pending:
-            first = min(self.eval_pending)
-            rows = [row for row in rows if row["iteration"] < first]
-        columns = list(dict.fromkeys(key for row in rows for key in row))
-        tmp = self.run_dir / f".{METRICS}.tmp"
-        with open(tmp, "w", newline="") as f:
-            writer = csv.DictWriter(f, columns)
-            writer.writeheader()
-            writer.writerows(rows)
-        os.replace(tmp, self.run_dir / METRICS)
+        first = min(self.eval_pending) if self.eval_pending else None
+        metrics.write_csv(self.history, self.run_dir / METRICS, before=first)
 
     # -- the loop ---------------------------------------------------------------------------------
-
-    def evaluates(self, iteration: int) -> bool:
-        """Whether ``iteration`` ends with an evaluation: every ``eval.every``-th one, and the last."""
-        every = self.cfg.eval.get("every", 1)
-        return (iteration + 1) % every == 0 or iteration + 1 == self.cfg.train.iterations
 
     def submit_evaluation(self, iteration: int, policy: dict | None = None) -> None:
         """Hand this iteration's policy (or ``policy``) to the background evaluator; the first hand-over
@@ -497,19 +483,8 @@ class Trainer:
         return [row for row in self.history if "success_rate" in row]
 
     def reached_stop(self) -> bool:
-        """Whether the last ``train.stop_patience`` evaluations all had success >= ``train.stop_success``."""
-        threshold, patience = self.cfg.train.stop_success, self.cfg.train.stop_patience
-        recent = self.evaluated()[-patience:]
-        return threshold is not None and len(recent) == patience and all(r["success_rate"] >= threshold for r in recent)
-
-    def stop_may_depend_on_pending(self) -> bool:
-        """Whether an evaluation still in flight could make :meth:`reached_stop` true: then the loop
-        waits for it, so that a run stops where in-line evaluation would have stopped it."""
-        threshold, patience = self.cfg.train.stop_success, self.cfg.train.stop_patience
-        if threshold is None or not self.eval_pending:
-            return False
-        recent = self.evaluated()[-(patience - 1):] if patience > 1 else []
-        return all(r["success_rate"] >= threshold for r in recent)
+        """Whether the evaluations so far stop the run (``train.stop_success``, see :class:`EvaluationSchedule`)."""
+        return self.schedule.reached_stop(self.evaluated())
 
     def train(self) -> list[dict[str, float]]:
         """Runs the remaining iterations, checkpointing after each; returns the metrics history."""
@@ -531,7 +506,7 @@ class Trainer:
         saved_at = self.iteration
         try:
             while self.iteration < cfg.train.iterations:
-                if self.stop_may_depend_on_pending():
+                if self.schedule.may_stop_on_pending(self.evaluated(), bool(self.eval_pending)):
                     self.collect_evaluations(wait=True)
                 if self.reached_stop():
                     break
@@ -569,146 +544,6 @@ class Trainer:
                 f"for {cfg.train.stop_patience} iterations (train.stop_success)"
             )
         return self.history
-
-
-class _IterationStats:
-    """Accumulates an iteration's diagnostics over its chunks and updates (tensors, one float at the end)."""
-
-    CURRICULUM = {  # sampled-batch entry (from the sampler's info) -> metrics column
-        "diversity": "diversity",
-        "proximity": "proximity",
-        "tradeoff": "lambda_mean",
-        "diversity_spread": "diversity_spread",
-        "proximity_spread": "proximity_spread",
-        "diversity_decided": "diversity_decided",
-    }
-
-    def __init__(self) -> None:
-        self.success, self.distance, self.off_table, self.motion = [], [], [], []
-        self.trajectories, self.first_observations = [], []
-        self.losses: dict[str, list[float]] = {}
-        self.clipped: list[torch.Tensor] = []
-        self.curriculum: dict[str, list[torch.Tensor]] = {}
-
-    MOTION = {  # column -> (what of the object's displacement from its start, threshold in metres)
-        "object_moved": ("distance", 0.01),
-        "object_rose_2cm": ("height", 0.02),
-        "object_rose_10cm": ("height", 0.10),
-    }
-    """Per training episode, at any of its steps (the thresholds of ``docs/learnability.py``)."""
-
-    def add_episodes(self, rollout, geometry, achieved_key: str = "achieved_goal") -> None:
-        """Training success, final distance, object off the table, how far the object moved and rose,
-        and the trajectories, from the (true) achieved goals under ``achieved_key``."""
-        final = rollout["next", achieved_key][:, -1]
-        self.success.append(rollout["next", "is_success"][:, -1].reshape(-1))
-        self.distance.append(torch.linalg.vector_norm(final - rollout["desired_goal"][:, -1], dim=-1))
-        trajectory = torch.cat([rollout[achieved_key][:, :1], rollout["next", achieved_key]], dim=1)
-        if geometry is not None:
-            self.off_table.append(geometry.below_table(final))
-            shift = trajectory - trajectory[:, :1]
-            furthest = {"distance": torch.linalg.vector_norm(shift, dim=-1).amax(1), "height": shift[..., 2].amax(1)}
-            self.motion.append(torch.stack([furthest[what] > limit for what, limit in self.MOTION.values()], -1))
-        self.trajectories.append(trajectory)
-        self.first_observations.append(rollout["observation"][:, 0])
-
-    def add_update(self, losses: dict[str, float], batch, agent: DDPGAgent) -> None:
-        for key, value in losses.items():
-            self.losses.setdefault(key, []).append(value)
-        self.clipped.append(torch.stack(agent.clipped_fraction(batch["observation"], batch["desired_goal"])))
-        for key in self.CURRICULUM:
-            if key in batch.keys():
-                self.curriculum.setdefault(key, []).append(batch.get(key)[0])
-
-    def achieved(self) -> torch.Tensor:
-        return torch.cat(self.trajectories)
-
-    def initial_observations(self) -> torch.Tensor:
-        return torch.cat(self.first_observations)
-
-    def row(self) -> dict[str, float]:
-        row = {
-            "train_success_rate": fraction(torch.cat(self.success)),
-            "train_final_distance": float(torch.cat(self.distance).mean()),
-        }
-        if self.off_table:
-            row["object_off_table"] = fraction(torch.cat(self.off_table))
-            row.update(zip(self.MOTION, fraction(torch.cat(self.motion), dim=0), strict=True))
-        row.update({key: float(np.mean(values)) for key, values in self.losses.items()})
-        if self.clipped:
-            observation, goal = torch.stack(self.clipped).mean(0).tolist()
-            row.update(observation_clipped=observation, goal_clipped=goal)
-        row.update({self.CURRICULUM[key]: float(torch.stack(v).float().mean()) for key, v in self.curriculum.items()})
-        return row
-
-
-def tracker_names(cfg: DictConfig, run_dir: Path) -> tuple[str, str, Path]:
-    """The run's name and group in W&B and MLflow, and the folder of a local MLflow store. A job of a
-    Hydra sweep (``-m``): its ``override_dirname`` in the group named after the sweep's folder, whose
-    store its jobs share; else ``<env>/<algo>/seed<seed>`` in group ``<env>/<algo>``, store in ``run_dir``."""
-    name, group, store = f"{cfg.env.name}/{cfg.algo.name}/seed{cfg.seed}", f"{cfg.env.name}/{cfg.algo.name}", run_dir
-    if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
-        hydra_cfg = HydraConfig.get()
-        sweep = Path(hydra_cfg.sweep.dir).resolve()
-        name, group, store = hydra_cfg.job.override_dirname or name, sweep.name, sweep
-    return name, group, store
-
-
-def open_loggers(cfg: DictConfig, run_dir: Path) -> loggers.RunLoggers:
-    """The trackers ``logging.backend`` names (:mod:`gchgg.loggers`), with the resolved settings, the
-    package versions and the git commit as hyperparameters."""
-    name, group, store = tracker_names(cfg, run_dir)
-    hparams = {
-        **OmegaConf.to_container(cfg, resolve=True),
-        "versions": versions(),
-        "matmul_resolved": resolve_matmul(cfg.matmul),
-    }
-    settings = cfg.logging
-    return loggers.make_loggers(
-        settings.backend, run_dir, name, group, hparams,
-        project=settings.get("project", "gchgg"), mlflow_uri=settings.get("mlflow_uri"), store_dir=store,
-    )  # fmt: skip
-
-
-def versions() -> dict[str, str]:
-    """Installed versions of the packages a result depends on."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {}
-    for package in ("gchgg", "torch", "torchrl", "tensordict", "mujoco", "dm-control", "hydra-core"):
-        try:
-            out[package] = version(package)
-        except PackageNotFoundError:
-            out[package] = "not installed"
-    try:  # the commit of the checkout the code runs from, "+dirty" with uncommitted changes
-        git = ["git", "-C", str(CONF_DIR.parent)]
-        commit = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                check=True).stdout
-        dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True).stdout
-        out["commit"] = commit.strip() + ("+dirty" if dirty.strip() else "")
-    except (OSError, subprocess.CalledProcessError):
-        out["commit"] = "unknown (not a git checkout)"
-    return out
-
-
-def startup_record(cfg: DictConfig) -> str:
-    """The run's resolved settings and the installed versions, as logged once at start-up."""
-    packages = ", ".join(f"{k} {v}" for k, v in versions().items())
-    matmul = cfg.matmul
-    return (
-        f"versions: {packages}\nmatmul: {matmul} -> {resolve_matmul(matmul)}\n"
-        f"resolved config:\n{OmegaConf.to_yaml(cfg, resolve=True)}"
-    )
-
-
-def requeued() -> bool:
-    """Whether this process is a SLURM job the cluster requeued (pre-empted or timed out, then
-    started again): ``SLURM_RESTART_COUNT`` > 0. Such a job resumes its run by itself."""
-    try:
-        return int(os.environ.get("SLURM_RESTART_COUNT", "0") or 0) > 0
-    except ValueError:
-        return False
 
 
 def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:

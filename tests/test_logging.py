@@ -14,7 +14,7 @@ import pytest
 from hydra.types import RunMode
 from test_train import config, read_metrics, tiny
 
-from gchgg import loggers, train
+from gchgg import loggers, run_info, train
 
 
 def run(tmp_path: Path, backend: str, iterations: int = 2, *extra: str) -> Path:
@@ -173,18 +173,18 @@ def test_mlflow_file_store_run_goes_on_after_a_resume(tmp_path, monkeypatch):
 
 def test_sweep_jobs_share_a_group_named_after_the_sweep(tmp_path, monkeypatch):
     cfg = config(["env=reach", "algo=her", "seed=1"])
-    assert train.tracker_names(cfg, tmp_path) == ("reach/her/seed1", "reach/her", tmp_path)  # no Hydra: a single run
+    assert run_info.tracker_names(cfg, tmp_path) == ("reach/her/seed1", "reach/her", tmp_path)  # no Hydra: a single run
     hydra_cfg = SimpleNamespace(
         mode=RunMode.MULTIRUN,
         sweep=SimpleNamespace(dir=str(tmp_path / "multirun" / "fig5_reach")),
         job=SimpleNamespace(override_dirname="algo=her,seed=1"),
     )
-    monkeypatch.setattr(train.HydraConfig, "initialized", staticmethod(lambda: True))
-    monkeypatch.setattr(train.HydraConfig, "get", staticmethod(lambda: hydra_cfg))
-    name, group, store = train.tracker_names(cfg, tmp_path / "job")
+    monkeypatch.setattr(run_info.HydraConfig, "initialized", staticmethod(lambda: True))
+    monkeypatch.setattr(run_info.HydraConfig, "get", staticmethod(lambda: hydra_cfg))
+    name, group, store = run_info.tracker_names(cfg, tmp_path / "job")
     assert (name, group, store) == ("algo=her,seed=1", "fig5_reach", tmp_path / "multirun" / "fig5_reach")
     hydra_cfg.mode = RunMode.RUN
-    assert train.tracker_names(cfg, tmp_path)[1] == "reach/her"
+    assert run_info.tracker_names(cfg, tmp_path)[1] == "reach/her"
 
 
 @pytest.mark.parametrize("backend", ["tensorbord", "[csv,wandbb]"])

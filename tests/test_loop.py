@@ -239,7 +239,7 @@ def test_episode_diagnostics_count_the_objects_that_moved_rose_and_fell():
     from tensordict import TensorDict
 
     import envs
-    from gchgg.train import _IterationStats
+    from gchgg.metrics import IterationStats
 
     start = torch.tensor([0.75, 0.2, 1.015])
     path = torch.zeros(4, 4, 3)  # displacement of each episode's object at steps 0..3
@@ -260,7 +260,7 @@ def test_episode_diagnostics_count_the_objects_that_moved_rose_and_fell():
         },
         batch_size=[4, 3],
     )
-    stats = _IterationStats()
+    stats = IterationStats()
     stats.add_episodes(rollout, envs.geometry("pick_no_obstacle"))
     row = stats.row()
     assert row["object_moved"] == 0.75  # all but the still one: > 1 cm at some step
