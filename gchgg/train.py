@@ -17,7 +17,9 @@ One iteration, top to bottom (``Trainer.iteration_step``), as the authors' ``lea
    then ``checkpoint.pt`` with everything else.
 
 All algorithm logic lives in the parts (``envs``, ``gchgg.graph``, ``gchgg.hgg``, ``gchgg.samplers``,
-``gchgg.transforms``, ``gchgg.agent``); this module only builds them from the config and calls them.
+``gchgg.transforms``, ``gchgg.agent``), which :mod:`gchgg.parts` builds from the config; this module
+runs the loop over them (the evaluation schedule and stop rule: :mod:`gchgg.evaluator`; the metrics
+row: :mod:`gchgg.metrics`; what a run records about itself: :mod:`gchgg.run_info`).
 """
 
 from __future__ import annotations
@@ -33,34 +35,19 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
 
 import hydra  # noqa: E402
-import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
-from torchrl.envs import TransformedEnv  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg import checkpoint, fork, loggers, metrics  # noqa: E402
-from gchgg.agent import DDPGAgent, DDPGConfig  # noqa: E402
-from gchgg.builders import (  # noqa: E402
-    check_positive,
-    make_goal_generator,
-    make_metric,
-    make_observation_noise,
-    make_relabel,
-    make_replay_buffer,
-    make_sampler,
-    make_tradeoff,
-)
 from gchgg.evaluator import BackgroundEvaluator, EvaluationSchedule, env_state  # noqa: E402
-from gchgg.hgg import estimate_max_distance  # noqa: E402
-from gchgg.linear import MATMUL_BACKENDS, PRECISIONS  # noqa: E402
+from gchgg.parts import Parts, check_config, make_parts  # noqa: E402
 from gchgg.replay_log import ReplayLog  # noqa: E402
 from gchgg.rollout import collect, evaluate  # noqa: E402
 from gchgg.run_info import open_loggers, requeued, startup_record  # noqa: E402
-from gchgg.validation import check_choice, check_number  # noqa: E402
 
 log = logging.getLogger(__name__)
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
@@ -68,187 +55,37 @@ CHECKPOINT = "checkpoint.pt"
 POLICY = "policy.pt"  # the actor alone, beside each checkpoint: what evaluation and export load
 REPLAY = "replay"  # folder of the replay files (gchgg.replay_log): each iteration's stored rows, once
 METRICS = "metrics.csv"
-MAX_DIS_RESETS = 1000  # resets over which HGG's max_dis (largest initial-to-target distance) is taken
-NORMALIZER_SOURCES = ("sampled", "collected")
-TRADEOFF_SAMPLERS = ("curriculum", "cher")  # samplers that read a trade-off λ
-
-
-def make_env(name: str, num_envs: int, seed: int, options: dict, noise_std: float, noise_seed: int):
-    """A batched env with observation noise of ``noise_std`` (a camera's error) and the noise's generator
-    (``None`` without noise): the training and the evaluation env, the latter built the same in the
-    trainer and in the background evaluator's process."""
-    env = envs.make(name, num_envs=num_envs, seed=seed, **options)
-    if not noise_std:
-        return env, None
-    generator = torch.Generator().manual_seed(noise_seed)
-    noise = make_observation_noise(envs.observation_layout(name), env.has_object, noise_std, generator)
-    return TransformedEnv(env, noise), generator
-
-
-def check_config(cfg: DictConfig) -> None:
-    """Fail before training, naming the setting, on sizes, rates and fractions out of range."""
-    for setting in (
-        "train.iterations", "train.episodes", "train.chunks", "train.batch_size", "eval.episodes", "buffer.episodes",
-        "train.stop_patience",
-    ):  # fmt: skip
-        check_positive(setting, OmegaConf.select(cfg, setting), integer=True)
-    check_positive("checkpoint.every", cfg.checkpoint.every, integer=True)
-    check_positive("eval.every", cfg.eval.get("every", 1), integer=True)
-    for setting in ("train.updates", "train.warmup_steps", "her.k", "threads"):
-        check_positive(setting, OmegaConf.select(cfg, setting), integer=True, allow_zero=True)
-    check_positive("env.threshold", cfg.env.threshold)
-    check_positive("noise.object_std", cfg.noise.object_std, allow_zero=True)
-    check_positive("eval.noise_std", cfg.eval.noise_std, allow_zero=True)
-    agent_config(cfg)
-    if cfg.train.episodes % cfg.train.chunks:
-        raise ValueError(
-            f"train.chunks must divide train.episodes (each chunk collects the same number of episodes), "
-            f"got train.chunks={cfg.train.chunks} for train.episodes={cfg.train.episodes}"
-        )
-    check_choice("agent.normalizer_source", cfg.agent.normalizer_source, NORMALIZER_SOURCES)
-    check_choice("matmul", cfg.matmul, MATMUL_BACKENDS)
-    check_choice("precision", cfg.get("precision", "float32"), PRECISIONS)
-    loggers.check_backends(cfg.logging.backend)  # a known name, its package installed
-    if cfg.train.stop_success is not None:
-        check_number("train.stop_success (a success rate, or null)", cfg.train.stop_success, low=0, high=1)
-    if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
-        raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {cfg.train.episodes}")
-
-
-def agent_config(cfg: DictConfig) -> DDPGConfig:
-    """The learner's hyperparameters from the ``agent`` section (all but ``normalizer_source``, which the
-    loop reads); a bad one is a ``ValueError`` naming ``agent.<setting>``."""
-    settings = {k: v for k, v in OmegaConf.to_container(cfg.agent).items() if k != "normalizer_source"}
-    try:
-        return DDPGConfig(**settings)
-    except ValueError as error:
-        raise ValueError(f"agent.{error}") from None
-    except TypeError:
-        unknown = sorted(set(settings) - set(DDPGConfig.__dataclass_fields__))
-        raise ValueError(f"unknown agent settings {unknown}; the settings are DDPGConfig's fields") from None
 
 
 class Trainer:
     """The state of one training run and the loop of Algorithm 2 over it.
 
     Args:
-        cfg: the composed Hydra config (read here, and only here, into explicit builder arguments).
-        run_dir: folder of ``metrics.csv``, ``checkpoint.pt`` and the saved config.
+        cfg: the composed config: the loop's settings (``train``, ``eval``, ``checkpoint``, ``logging``).
+        run_dir: folder of ``metrics.csv``, ``checkpoint.pt``, the replay files and the saved config.
+        parts: what the run trains with (default: :func:`gchgg.parts.make_parts` of ``cfg``).
     """
 
-    def __init__(self, cfg: DictConfig, run_dir: Path) -> None:
-        check_config(cfg)
-        self.cfg = cfg
-        self.run_dir = run_dir
-        if cfg.threads:
-            torch.set_num_threads(cfg.threads)
-        torch.manual_seed(cfg.seed)
-        seeds = np.random.SeedSequence(cfg.seed).generate_state(7)
-        self.explore_rng = torch.Generator().manual_seed(int(seeds[0]))
-        her_rng = torch.Generator().manual_seed(int(seeds[1]))
-        buffer_rng = torch.Generator().manual_seed(int(seeds[2]))
-
-        name = cfg.env.name
-        self.geometry = envs.geometry(name)
-        self.steps = self.geometry.episode_length
+    def __init__(self, cfg: DictConfig, run_dir: Path, parts: Parts | None = None) -> None:
+        self.cfg, self.run_dir = cfg, run_dir
+        parts = make_parts(cfg) if parts is None else parts
+        self.parts = parts
+        self.env, self.eval_env, self.build_eval_env = parts.env, parts.eval_env, parts.build_eval_env
+        self.metric, self.tradeoff, self.sampler = parts.metric, parts.tradeoff, parts.sampler
+        self.buffer, self.relabel, self.agent = parts.buffer, parts.relabel, parts.agent
+        self.goal_generator = parts.goal_generator
+        self.explore_rng, self.noise_generators, self.achieved_key = (
+            parts.streams["explore"], parts.noise_generators, parts.achieved_key)
+        self.geometry, self.steps = envs.geometry(cfg.env.name), parts.steps
         self.chunk_size = cfg.train.episodes // cfg.train.chunks
-        options = {"threshold": cfg.env.threshold, "start": cfg.env.get("start", "original")}
-        # Observation noise (a camera's error): the policy sees noisy positions; rewards, energy and the
-        # goal pool read the true achieved goal the noise transform keeps.
-        self.env, noise = make_env(name, self.chunk_size, cfg.seed, options, cfg.noise.object_std, int(seeds[5]))
-        self.build_eval_env = partial(
-            make_env, name, cfg.eval.episodes, int(seeds[3]), options, cfg.eval.noise_std, int(seeds[6])
-        )
-        self.eval_env, eval_noise = self.build_eval_env()
-        self.achieved_key = "achieved_goal"
-        self.noise_generators = {key: g for key, g in (("env", noise), ("eval_env", eval_noise)) if g is not None}
+        self.replay_log = ReplayLog(run_dir / REPLAY, parts.buffer_rows)
+        self.schedule = EvaluationSchedule(cfg.train.iterations, cfg.eval.get("every", 1), cfg.train.stop_success,
+                                           cfg.train.stop_patience)
         self.evaluator: BackgroundEvaluator | None = None  # started by train() with eval.background
         self.eval_pending: dict[int, dict] = {}  # iteration -> policy snapshot, submitted, not yet back
         self.eval_state: dict | None = None  # the eval env's state before the pending evaluations
         self._logged = 0  # history rows already sent to the trackers (logging.backend)
-        if cfg.noise.object_std:
-            self.achieved_key = "true_achieved_goal"  # ObservationNoise keeps the clean achieved goal there
-
-        algo = cfg.algo
-        self.metric = make_metric(
-            algo.metric,
-            self.geometry.field,
-            self.geometry.obstacles,
-            n=tuple(cfg.graph.n),
-            margin=cfg.graph.margin,
-            snap=cfg.graph.snap,
-            cache_dir=cfg.graph.cache_dir,
-        )
-        self.tradeoff = None  # only samplers that weigh diversity against proximity have a λ
-        if algo.sampler in TRADEOFF_SAMPLERS:
-            self.tradeoff = make_tradeoff(cfg.tradeoff.name, **{k: v for k, v in cfg.tradeoff.items() if k != "name"})
-        curriculum = cfg.curriculum
-        diversity_metric = None
-        if algo.sampler == "curriculum" and curriculum.diversity_metric != algo.metric:
-            diversity_metric = make_metric(
-                curriculum.diversity_metric, self.geometry.field, self.geometry.obstacles,
-                n=tuple(cfg.graph.n), margin=cfg.graph.margin, snap=cfg.graph.snap, cache_dir=cfg.graph.cache_dir,
-            )  # fmt: skip
-        self.sampler = make_sampler(
-            algo.sampler,
-            self.metric,
-            self.tradeoff,
-            num_candidates=curriculum.num_candidates,
-            proximity=curriculum.proximity,
-            diversity_of=curriculum.diversity_of,
-            diversity_metric=diversity_metric,
-            scale=curriculum.scale,
-            cher_pool_size=cfg.cher.pool_size,
-        )
-        copies = cfg.her.k + 1
-        self.buffer = make_replay_buffer(
-            cfg.buffer.episodes, copies * self.steps, self.sampler, batch_size=cfg.train.batch_size,
-            generator=buffer_rng,
-        )
-        self.replay_log = ReplayLog(run_dir / REPLAY, cfg.buffer.episodes * copies * self.steps)
-        self.relabel = make_relabel(
-            partial(envs.reward, threshold=cfg.env.threshold),
-            k=cfg.her.k,
-            strategy=cfg.her.strategy,
-            generator=her_rng,
-            true_achieved_goal_key=self.achieved_key if cfg.noise.object_std else None,
-        )
-        self.agent = DDPGAgent(
-            self.env.obs_dim,
-            3,
-            self.env.action_dim,
-            agent_config(cfg),
-            generator=torch.Generator().manual_seed(int(seeds[4])),
-            matmul=cfg.matmul,
-            precision=cfg.get("precision", "float32"),
-        )
-        self.goal_generator = None
-        if algo.goal_generator != "none":
-            self.goal_generator = make_goal_generator(
-                algo.goal_generator,
-                self.metric,
-                max_dis=self._max_distance(),
-                gamma=cfg.agent.gamma,
-                stop_threshold=cfg.env.stop_threshold,
-                success_threshold=cfg.env.threshold,
-                pool_size=cfg.hgg.pool_size,
-                c=cfg.hgg.c,
-                L=cfg.hgg.L,
-            )
-        self.schedule = EvaluationSchedule(cfg.train.iterations, cfg.eval.get("every", 1), cfg.train.stop_success,
-                                           cfg.train.stop_patience)
-        self.iteration = 0
-        self.env_steps = 0
-        self.history: list[dict[str, float]] = []
-
-    def _max_distance(self) -> float:
-        """HGG's max_dis: the largest metric distance from initial achieved goal to target over resets."""
-        starts, targets = [], []
-        for _ in range(math.ceil(MAX_DIS_RESETS / self.eval_env.num_envs)):
-            td = self.eval_env.reset()
-            starts.append(td["achieved_goal"])
-            targets.append(td["desired_goal"])
-        return estimate_max_distance(self.metric, torch.cat(starts), torch.cat(targets))
+        self.iteration, self.env_steps, self.history = 0, 0, []
 
     # -- one iteration ----------------------------------------------------------------------------
 

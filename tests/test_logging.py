@@ -14,7 +14,7 @@ import pytest
 from hydra.types import RunMode
 from test_train import config, read_metrics, tiny
 
-from gchgg import loggers, run_info, train
+from gchgg import loggers, parts, run_info, train
 
 
 def run(tmp_path: Path, backend: str, iterations: int = 2, *extra: str) -> Path:
@@ -191,7 +191,7 @@ def test_sweep_jobs_share_a_group_named_after_the_sweep(tmp_path, monkeypatch):
 def test_an_unknown_backend_fails_before_training_naming_the_setting(backend):
     with pytest.raises(ValueError, match=r"logging\.backend: unknown backend '(tensorbord|wandbb)'; the backends are "
                                          r"csv, tensorboard, wandb, mlflow"):  # fmt: skip
-        train.check_config(config([f"logging.backend={backend}"]))
+        parts.check_config(config([f"logging.backend={backend}"]))
 
 
 def test_a_backend_without_its_package_names_the_extra_to_install(monkeypatch):
@@ -199,7 +199,7 @@ def test_a_backend_without_its_package_names_the_extra_to_install(monkeypatch):
     monkeypatch.setattr(loggers.importlib.util, "find_spec", lambda name: None if name == "wandb" else find_spec(name))
     message = r'logging\.backend=wandb needs the wandb package: pip install -e "\.\[wandb\]"'
     with pytest.raises(ImportError, match=message):
-        train.check_config(config(["logging.backend=[csv,wandb]"]))
+        parts.check_config(config(["logging.backend=[csv,wandb]"]))
 
 
 def test_metrics_csv_is_unchanged_by_the_backends(tmp_path):

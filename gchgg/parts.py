@@ -1,0 +1,217 @@
+"""The parts of one training run, built from its config: envs, metric, sampler, buffer, relabelling, agent, goals.
+
+:func:`make_parts` reads the composed config (and only it) into the explicit arguments of the
+builders in :mod:`gchgg.builders`; the :class:`~gchgg.train.Trainer` only runs the loop over what it
+returns, so a test or a notebook can build a trainer from parts it made itself. Every random stream
+of a run comes from one named seed table (:func:`seed_table`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torchrl.envs import TransformedEnv
+
+import envs
+from gchgg import loggers
+from gchgg.agent import DDPGAgent, DDPGConfig
+from gchgg.builders import (
+    check_positive,
+    make_goal_generator,
+    make_metric,
+    make_observation_noise,
+    make_relabel,
+    make_replay_buffer,
+    make_sampler,
+    make_tradeoff,
+)
+from gchgg.hgg import estimate_max_distance
+from gchgg.linear import MATMUL_BACKENDS, PRECISIONS
+from gchgg.validation import check_choice, check_number
+
+__all__ = ["SEEDS", "Parts", "agent_config", "check_config", "make_env", "make_parts", "seed_table"]
+
+MAX_DIS_RESETS = 1000  # resets over which HGG's max_dis (largest initial-to-target distance) is taken
+NORMALIZER_SOURCES = ("sampled", "collected")
+TRADEOFF_SAMPLERS = ("curriculum", "cher")  # samplers that read a trade-off λ
+SEEDS = ("explore", "her", "buffer", "eval_env", "agent", "env_noise", "eval_noise")
+"""The run's random streams, in the order ``np.random.SeedSequence(seed)`` hands out their seeds (the
+order is the recorded runs' and must not change; a new stream goes at the end). The training env's
+tasks are seeded with ``seed`` itself."""
+
+
+def seed_table(seed: int) -> dict[str, int]:
+    """The seed of each of the run's random streams (:data:`SEEDS`), derived from the run's ``seed``."""
+    return dict(zip(SEEDS, (int(s) for s in np.random.SeedSequence(seed).generate_state(len(SEEDS))), strict=True))
+
+
+@dataclass
+class Parts:
+    """What one run trains with, built by :func:`make_parts`.
+
+    Attributes:
+        env: the batched training env (one simulation per episode of a chunk), with observation noise
+            when ``noise.object_std`` is set; ``eval_env`` the evaluation env, and ``build_eval_env`` the
+            function that builds it (the background evaluator builds its own).
+        noise_generators: the observation noise's generators by env (``"env"``, ``"eval_env"``), where
+            there is noise.
+        achieved_key: where the true achieved goal is (``true_achieved_goal`` under observation noise).
+        metric, tradeoff, sampler, buffer: the goal metric, the λ schedule (``None`` for samplers
+            without one), the replay sampler and the replay buffer.
+        relabel: the energy + HER relabelling transform.
+        agent: the DDPG learner; goal_generator: HGG's (``None`` without one).
+        streams: the loop's own generators by name (``"explore"``).
+        steps: the episode length T; buffer_rows: the buffer's capacity in rows.
+    """
+
+    env: object
+    eval_env: object
+    build_eval_env: object
+    noise_generators: dict
+    achieved_key: str
+    metric: object
+    tradeoff: object
+    sampler: object
+    buffer: object
+    relabel: object
+    agent: DDPGAgent
+    goal_generator: object
+    streams: dict
+    steps: int
+    buffer_rows: int
+
+
+def make_parts(cfg: DictConfig) -> Parts:
+    """Check the config (:func:`check_config`) and build a run's parts from it. Sets torch's thread count
+    (``threads``) and its global seed; the order of the builds is that of the recorded runs."""
+    check_config(cfg)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    seeds = seed_table(cfg.seed)
+    name, algo, graph = cfg.env.name, cfg.algo, cfg.graph
+    geometry = envs.geometry(name)
+    steps, chunk_size = geometry.episode_length, cfg.train.episodes // cfg.train.chunks
+    options = {"threshold": cfg.env.threshold, "start": cfg.env.get("start", "original")}
+    # Observation noise (a camera's error): the policy sees noisy positions; rewards, energy and the
+    # goal pool read the true achieved goal the noise transform keeps.
+    env, noise = make_env(name, chunk_size, cfg.seed, options, cfg.noise.object_std, seeds["env_noise"])
+    build_eval_env = partial(make_env, name, cfg.eval.episodes, seeds["eval_env"], options, cfg.eval.noise_std,
+                             seeds["eval_noise"])
+    eval_env, eval_noise = build_eval_env()
+    achieved_key = "true_achieved_goal" if cfg.noise.object_std else "achieved_goal"
+
+    def metric_of(kind: str):
+        return make_metric(kind, geometry.field, geometry.obstacles, n=tuple(graph.n), margin=graph.margin,
+                           snap=graph.snap, cache_dir=graph.cache_dir)
+
+    metric = metric_of(algo.metric)
+    tradeoff = None  # only samplers that weigh diversity against proximity have a λ
+    if algo.sampler in TRADEOFF_SAMPLERS:
+        tradeoff = make_tradeoff(cfg.tradeoff.name, **{k: v for k, v in cfg.tradeoff.items() if k != "name"})
+    curriculum = cfg.curriculum
+    diversity_metric = None
+    if algo.sampler == "curriculum" and curriculum.diversity_metric != algo.metric:
+        diversity_metric = metric_of(curriculum.diversity_metric)
+    sampler = make_sampler(
+        algo.sampler, metric, tradeoff, num_candidates=curriculum.num_candidates, proximity=curriculum.proximity,
+        diversity_of=curriculum.diversity_of, diversity_metric=diversity_metric, scale=curriculum.scale,
+        cher_pool_size=cfg.cher.pool_size,
+    )  # fmt: skip
+    copies = cfg.her.k + 1
+    buffer = make_replay_buffer(cfg.buffer.episodes, copies * steps, sampler, batch_size=cfg.train.batch_size,
+                                generator=torch.Generator().manual_seed(seeds["buffer"]))
+    relabel = make_relabel(
+        partial(envs.reward, threshold=cfg.env.threshold), k=cfg.her.k, strategy=cfg.her.strategy,
+        generator=torch.Generator().manual_seed(seeds["her"]),
+        true_achieved_goal_key=achieved_key if cfg.noise.object_std else None,
+    )  # fmt: skip
+    agent = DDPGAgent(env.obs_dim, 3, env.action_dim, agent_config(cfg),
+                      generator=torch.Generator().manual_seed(seeds["agent"]), matmul=cfg.matmul,
+                      precision=cfg.get("precision", "float32"))
+    goal_generator = None
+    if algo.goal_generator != "none":
+        goal_generator = make_goal_generator(
+            algo.goal_generator, metric, max_dis=max_distance(metric, eval_env), gamma=cfg.agent.gamma,
+            stop_threshold=cfg.env.stop_threshold, success_threshold=cfg.env.threshold, pool_size=cfg.hgg.pool_size,
+            c=cfg.hgg.c, L=cfg.hgg.L,
+        )  # fmt: skip
+    return Parts(
+        env=env, eval_env=eval_env, build_eval_env=build_eval_env,
+        noise_generators={key: g for key, g in (("env", noise), ("eval_env", eval_noise)) if g is not None},
+        achieved_key=achieved_key, metric=metric, tradeoff=tradeoff, sampler=sampler, buffer=buffer,
+        relabel=relabel, agent=agent, goal_generator=goal_generator,
+        streams={"explore": torch.Generator().manual_seed(seeds["explore"])},
+        steps=steps, buffer_rows=cfg.buffer.episodes * copies * steps,
+    )  # fmt: skip
+
+
+def max_distance(metric, env) -> float:
+    """HGG's max_dis: the largest metric distance from initial achieved goal to target over
+    :data:`MAX_DIS_RESETS` resets of ``env`` (the evaluation env: its draws move on)."""
+    starts, targets = [], []
+    for _ in range(math.ceil(MAX_DIS_RESETS / env.num_envs)):
+        td = env.reset()
+        starts.append(td["achieved_goal"])
+        targets.append(td["desired_goal"])
+    return estimate_max_distance(metric, torch.cat(starts), torch.cat(targets))
+
+
+def make_env(name: str, num_envs: int, seed: int, options: dict, noise_std: float, noise_seed: int):
+    """A batched env with observation noise of ``noise_std`` (a camera's error) and the noise's generator
+    (``None`` without noise): the training and the evaluation env, the latter built the same in the
+    trainer and in the background evaluator's process."""
+    env = envs.make(name, num_envs=num_envs, seed=seed, **options)
+    if not noise_std:
+        return env, None
+    generator = torch.Generator().manual_seed(noise_seed)
+    noise = make_observation_noise(envs.observation_layout(name), env.has_object, noise_std, generator)
+    return TransformedEnv(env, noise), generator
+
+
+def check_config(cfg: DictConfig) -> None:
+    """Fail before training, naming the setting, on sizes, rates and fractions out of range."""
+    for setting in (
+        "train.iterations", "train.episodes", "train.chunks", "train.batch_size", "eval.episodes", "buffer.episodes",
+        "train.stop_patience",
+    ):  # fmt: skip
+        check_positive(setting, OmegaConf.select(cfg, setting), integer=True)
+    check_positive("checkpoint.every", cfg.checkpoint.every, integer=True)
+    check_positive("eval.every", cfg.eval.get("every", 1), integer=True)
+    for setting in ("train.updates", "train.warmup_steps", "her.k", "threads"):
+        check_positive(setting, OmegaConf.select(cfg, setting), integer=True, allow_zero=True)
+    check_positive("env.threshold", cfg.env.threshold)
+    check_positive("noise.object_std", cfg.noise.object_std, allow_zero=True)
+    check_positive("eval.noise_std", cfg.eval.noise_std, allow_zero=True)
+    agent_config(cfg)
+    if cfg.train.episodes % cfg.train.chunks:
+        raise ValueError(
+            f"train.chunks must divide train.episodes (each chunk collects the same number of episodes), "
+            f"got train.chunks={cfg.train.chunks} for train.episodes={cfg.train.episodes}"
+        )
+    check_choice("agent.normalizer_source", cfg.agent.normalizer_source, NORMALIZER_SOURCES)
+    check_choice("matmul", cfg.matmul, MATMUL_BACKENDS)
+    check_choice("precision", cfg.get("precision", "float32"), PRECISIONS)
+    loggers.check_backends(cfg.logging.backend)  # a known name, its package installed
+    if cfg.train.stop_success is not None:
+        check_number("train.stop_success (a success rate, or null)", cfg.train.stop_success, low=0, high=1)
+    if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
+        raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {cfg.train.episodes}")
+
+
+def agent_config(cfg: DictConfig) -> DDPGConfig:
+    """The learner's hyperparameters from the ``agent`` section (all but ``normalizer_source``, which the
+    loop reads); a bad one is a ``ValueError`` naming ``agent.<setting>``."""
+    settings = {k: v for k, v in OmegaConf.to_container(cfg.agent).items() if k != "normalizer_source"}
+    try:
+        return DDPGConfig(**settings)
+    except ValueError as error:
+        raise ValueError(f"agent.{error}") from None
+    except TypeError:
+        unknown = sorted(set(settings) - set(DDPGConfig.__dataclass_fields__))
+        raise ValueError(f"unknown agent settings {unknown}; the settings are DDPGConfig's fields") from None
