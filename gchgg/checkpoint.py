@@ -1,10 +1,15 @@
-"""Atomic, checksummed checkpoints: a run killed at any moment leaves the last good one intact.
+"""Checkpoints: atomic, checksummed files that a run killed at any moment leaves intact, and the parts' state.
 
 A checkpoint file is a small header (magic, SHA-256 of the payload, payload length) followed by a
 ``torch.save`` payload. :func:`save` writes to a temporary file in the same folder, flushes it to
 disk and renames it over the old checkpoint, so a reader sees either the previous checkpoint or the
 new one, never a partial file. :func:`load` verifies the header and the checksum and raises
 :class:`CorruptCheckpointError` when anything does not match.
+
+:func:`parts_state` and :func:`load_parts_state` are what a run's checkpoint holds of its parts
+(:class:`gchgg.parts.Parts`): the agent, the buffer's sampler, writer and generator states and its
+storage's length (the rows are in the replay files, :mod:`gchgg.replay_log`), the trade-off, the goal
+generator, and every random stream and env state; the trainer adds the loop's own state.
 """
 
 from __future__ import annotations
@@ -15,9 +20,15 @@ import os
 import struct
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
+
+from gchgg.evaluator import env_state
+
+if TYPE_CHECKING:
+    from gchgg.parts import Parts
+    from gchgg.replay_log import ReplayLog
 
 _MAGIC = b"GCHGGCK1"
 _HEADER = struct.Struct("<8s32sQ")  # magic, sha256 digest, payload length
@@ -83,3 +94,55 @@ def load(path: str | os.PathLike) -> dict[str, Any]:
     if hashlib.sha256(payload).digest() != digest:
         raise CorruptCheckpointError(f"checkpoint {path} is corrupt: checksum mismatch")
     return torch.load(io.BytesIO(payload), weights_only=False)
+
+
+def parts_state(parts: Parts, evaluation: dict | None = None) -> dict[str, Any]:
+    """The parts' states, replay rows aside; ``evaluation``: the eval env's state before the background
+    evaluations in flight (:func:`gchgg.evaluator.env_state`; default: the eval env's state now)."""
+    buffer = parts.buffer.state_dict()
+    storage = buffer["_storage"]
+    buffer["_storage"] = {"initialized": storage["initialized"], "_len": storage["_len"]}  # the rows: replay files
+    evaluation = evaluation or env_state(parts.eval_env, parts.noise_generators.get("eval_env"))
+    noise_rng = {name: g.get_state() for name, g in parts.noise_generators.items()}
+    if "eval_env" in noise_rng:
+        noise_rng["eval_env"] = evaluation["noise"]
+    return {
+        "agent": parts.agent.state_dict(),
+        "buffer": buffer,
+        "tradeoff": None if parts.tradeoff is None else parts.tradeoff.state_dict(),
+        "goal_generator": None if parts.goal_generator is None else parts.goal_generator.state_dict(),
+        "her_rng": parts.relabel[-1].generator.get_state(),
+        "explore_rng": parts.streams["explore"].get_state(),
+        "torch_rng": torch.get_rng_state(),
+        "env_random": parts.env.random_state(),
+        "eval_env_random": evaluation["random"],
+        "noise_rng": noise_rng,
+    }
+
+
+def load_parts_state(parts: Parts, state: dict[str, Any], replay_log: ReplayLog) -> None:
+    """Restore :func:`parts_state`'s output; the buffer's rows from the replay files ``state["replay"]`` lists
+    (checked against the stored length: :class:`CorruptCheckpointError` if they differ)."""
+    parts.agent.load_state_dict(state["agent"])
+    buffer = dict(state["buffer"])
+    if "replay" in state:  # incremental checkpoint: the rows come from the replay files
+        replay_log.restore(state["replay"], parts.buffer.storage)
+        restored = parts.buffer.storage.state_dict()
+        if restored["_len"] != buffer["_storage"]["_len"]:
+            raise CorruptCheckpointError(
+                f"the replay files in {replay_log.folder} hold {restored['_len']} rows, the checkpoint "
+                f"says {buffer['_storage']['_len']}"
+            )
+        buffer["_storage"] = restored
+    parts.buffer.load_state_dict(buffer)
+    if parts.tradeoff is not None:
+        parts.tradeoff.load_state_dict(state["tradeoff"])
+    if parts.goal_generator is not None:
+        parts.goal_generator.load_state_dict(state["goal_generator"])  # the sampler's state knows if it stopped
+    parts.relabel[-1].generator.set_state(state["her_rng"])
+    parts.streams["explore"].set_state(state["explore_rng"])
+    torch.set_rng_state(state["torch_rng"])
+    parts.env.set_random_state(state["env_random"])
+    parts.eval_env.set_random_state(state["eval_env_random"])
+    for name, generator in parts.noise_generators.items():
+        generator.set_state(state["noise_rng"][name])

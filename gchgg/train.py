@@ -187,33 +187,16 @@ class Trainer:
     # -- checkpoints ------------------------------------------------------------------------------
 
     def state_dict(self) -> dict:
-        """Everything but the replay rows (those are in the replay files :attr:`replay_log` lists):
-        the buffer's sampler, writer and generator states and its storage's length."""
-        buffer = self.buffer.state_dict()
-        storage = buffer["_storage"]
-        buffer["_storage"] = {"initialized": storage["initialized"], "_len": storage["_len"]}
-        # the eval env's state before the evaluations in flight (the trainer's own env when none is)
-        evaluation = self.eval_state or env_state(self.eval_env, self.noise_generators.get("eval_env"))
-        noise_rng = {name: g.get_state() for name, g in self.noise_generators.items()}
-        if "eval_env" in noise_rng:
-            noise_rng["eval_env"] = evaluation["noise"]
+        """The loop's state (iteration, history, evaluations in flight, the replay files' manifest) and the
+        parts' (:func:`gchgg.checkpoint.parts_state`): everything but the replay rows."""
         return {
             "run": self.identity(),
             "iteration": self.iteration,
             "env_steps": self.env_steps,
             "history": self.history,
-            "agent": self.agent.state_dict(),
-            "buffer": buffer,
             "replay": self.replay_log.manifest(),
-            "tradeoff": None if self.tradeoff is None else self.tradeoff.state_dict(),
-            "goal_generator": None if self.goal_generator is None else self.goal_generator.state_dict(),
-            "her_rng": self.relabel[-1].generator.get_state(),
-            "explore_rng": self.explore_rng.get_state(),
-            "torch_rng": torch.get_rng_state(),
-            "env_random": self.env.random_state(),
-            "eval_env_random": evaluation["random"],
-            "noise_rng": noise_rng,
             "eval_pending": list(self.eval_pending.items()),
+            **checkpoint.parts_state(self.parts, self.eval_state),
         }
 
     def identity(self) -> dict:
@@ -230,29 +213,7 @@ class Trainer:
             raise ValueError(f"the checkpoint in {self.run_dir} belongs to another run ({differences}); "
                              "resume it with its own settings, or start this one in another folder")
         self.iteration, self.env_steps, self.history = state["iteration"], state["env_steps"], state["history"]
-        self.agent.load_state_dict(state["agent"])
-        buffer = dict(state["buffer"])
-        if "replay" in state:  # incremental checkpoint: the rows come from the replay files
-            self.replay_log.restore(state["replay"], self.buffer.storage)
-            restored = self.buffer.storage.state_dict()
-            if restored["_len"] != buffer["_storage"]["_len"]:
-                raise checkpoint.CorruptCheckpointError(
-                    f"the replay files in {self.replay_log.folder} hold {restored['_len']} rows, the checkpoint "
-                    f"says {buffer['_storage']['_len']}"
-                )
-            buffer["_storage"] = restored
-        self.buffer.load_state_dict(buffer)
-        if self.tradeoff is not None:
-            self.tradeoff.load_state_dict(state["tradeoff"])
-        if self.goal_generator is not None:
-            self.goal_generator.load_state_dict(state["goal_generator"])  # the sampler's state knows if it stopped
-        self.relabel[-1].generator.set_state(state["her_rng"])
-        self.explore_rng.set_state(state["explore_rng"])
-        torch.set_rng_state(state["torch_rng"])
-        self.env.set_random_state(state["env_random"])
-        self.eval_env.set_random_state(state["eval_env_random"])
-        for name, generator in self.noise_generators.items():
-            generator.set_state(state["noise_rng"][name])
+        checkpoint.load_parts_state(self.parts, state, self.replay_log)
         # evaluations in flight when the checkpoint was written: submitted again when training goes on
         self.eval_pending = dict(state.get("eval_pending", []))
         self._logged = len(self.evaluated()) if self.eval_pending else len(self.history)  # logged by the first run
