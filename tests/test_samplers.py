@@ -395,6 +395,22 @@ def test_cher_greedy_chooses_as_a_plain_loop(size, batch, k, lam):
             assert fast_cover.tolist() == torch.tensor(cover, dtype=torch.float32).tolist()
 
 
+def test_cher_groups_near_equal_float32_goals_without_a_hash_collision():
+    """Two resting-object goals recorded on push_new, float32 widened to float64 (29 low bits zero): the old
+    weighted sum of the coordinates' bits gave them one hash, which sent every grouping to the slow path."""
+    import numpy as np
+
+    from gchgg.samplers.cher import _hash_rows, nearest_other
+
+    pair = np.array([[0.7050896883010864, 0.2486274093389511, 0.8698921203613281],
+                     [0.705089807510376, 0.24862734973430634, 0.8698922395706177]], dtype=np.float32).astype(np.float64)
+    weights = np.arange(1, 7, 2, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+    assert len(set((pair.view(np.uint64) * weights).sum(1).tolist())) == 1  # the collision the fix removes
+    assert len(set(_hash_rows(pair).tolist())) == 2
+    index, distance = nearest_other(np.concatenate([pair, pair[:1]]))
+    assert index.tolist() == [2, 0, 0] and distance[1] > 0
+
+
 def test_cher_nearest_other_is_the_exact_nearest_neighbour():
     from gchgg.samplers.cher import nearest_other
 

@@ -341,7 +341,7 @@ def nearest_other(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     nearest to a repeated point has that point's first copy; between distinct points at exactly
     the same distance the k-d tree chooses.
 
-    Exact copies are grouped first (a hash of the coordinates' bits, checked), so the k-d tree is
+    Exact copies are grouped first (a hash of the coordinates' bits, checked, :func:`_hash_rows`), so the k-d tree is
     built on distinct points only and queried only for points without copies: a pool where an
     object at rest repeats one position thousands of times costs no more than its distinct
     positions (``benchmarks/samplers.py``).
@@ -358,8 +358,7 @@ def nearest_other(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     n = len(points)
     points = np.ascontiguousarray(points + 0.0)  # -0.0 as 0.0
-    weights = np.arange(1, 2 * points.shape[1], 2, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
-    mix = (points.view(np.uint64) * weights).sum(1)  # wraps around: a hash of the coordinates' bits
+    mix = _hash_rows(points)
     _, first, group, copies = np.unique(mix, return_index=True, return_inverse=True, return_counts=True)
     if not np.array_equal(points[first[group]], points):  # a hash collision: group by the coordinates themselves
         _, first, group, copies = np.unique(points, axis=0, return_index=True, return_inverse=True, return_counts=True)
@@ -376,6 +375,21 @@ def nearest_other(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     own_first = first[group] == np.arange(n)
     index = np.where(repeated, np.where(own_first, second[group], first[group]), index)
     return index, np.where(repeated, 0.0, distance)
+
+
+def _hash_rows(points: np.ndarray) -> np.ndarray:
+    """A 64-bit hash of each row's coordinate bits: MurmurHash3's finaliser of each coordinate (with its
+    position), summed. Goals stored as float32 and widened to float64 have their 29 low bits zero, which
+    a plain weighted sum of the bits keeps zero, so that near-equal goals could collide (a pair recorded
+    on push_new did, ``tests/test_samplers.py``) and send the call to the slow exact grouping."""
+    x = points.view(np.uint64) + np.arange(points.shape[1], dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+    with np.errstate(over="ignore"):
+        x ^= x >> np.uint64(33)
+        x *= np.uint64(0xFF51AFD7ED558CCD)
+        x ^= x >> np.uint64(33)
+        x *= np.uint64(0xC4CEB9FE1A85EC53)
+        x ^= x >> np.uint64(33)
+    return x.sum(1)  # wraps around
 
 
 def _small(index: np.ndarray) -> np.ndarray:
