@@ -12,9 +12,11 @@ After the last algorithm's iterations its buffer is filled to 5,000 episodes and
 timed: seconds, bytes written and peak memory, against the full-buffer checkpoint written before
 December 2026. gchgg is then timed with C = 1, 5 and 50 chunks (C = 50 is the default, the
 original's per-episode loop; C = 1 collects all episodes with one policy, then runs all updates), one
-trainer per C and their iterations in alternating rounds, and the ratio C=50 / C=1 printed. Last,
+trainer per C and their iterations in alternating rounds, and the ratio C=50 / C=1 printed. Then
 wall-clock seconds per gchgg iteration with evaluation in-line, in the background process and
-without evaluation (``--overlap``).
+without evaluation (``--overlap``), the background line ("everything on") against the fp32 floor:
+the same raw steps plus bare fp32 updates with torch's default matmul; last, two gchgg runs in two
+processes at once against one alone, each as training runs by default (``--side-by-side``).
 
 The networks' products run on ``--matmul`` (default ``auto``, the trainer's default: oneDNN where
 torch has it), the bare updates of the floor too.
@@ -268,6 +270,48 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
           f"background / without = {wall['background evaluation'] / base:.2f} (target <= 1.1)")
     print(f"everything on (background evaluation, checkpoints): {wall['background evaluation']:.2f} s/iteration "
           "(target <= 18 s on a 2-core machine)")
+    return wall["background evaluation"]
+
+
+def everything_on(iterations: int, updates: int, threads: int, matmul: str = "auto") -> float:
+    """Wall-clock seconds per gchgg iteration as training runs by default (in-line evaluation of 100
+    episodes, a checkpoint and metrics after each iteration), after one untimed iteration."""
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=["env=push_new", "algo=gchgg", f"train.updates={updates}",
+                                           "train.warmup_steps=0", f"threads={threads}", f"matmul={matmul}",
+                                           "train.iterations=1000"])  # fmt: skip
+    with tempfile.TemporaryDirectory() as run_dir:
+        trainer = Trainer(cfg, Path(run_dir))
+        fill_pool(trainer)
+        trainer.history.append(trainer.iteration_step())
+        start = time.perf_counter()
+        for _ in range(iterations):
+            trainer.history.append(trainer.iteration_step())
+            trainer.save()
+            trainer.write_metrics()
+        return (time.perf_counter() - start) / iterations
+
+
+def side_by_side(iterations: int, updates: int, threads: int, matmul: str = "auto") -> None:
+    """Two gchgg runs at once, each in its own process (as two training runs share this machine), against
+    one alone, everything as training runs by default (:func:`everything_on`)."""
+    import subprocess
+
+    command = [sys.executable, __file__, "--one", str(iterations), f"--updates={updates}", f"--threads={threads}",
+               f"--matmul={matmul}"]
+
+    def seconds(processes: list) -> list[float]:
+        return [float(p.communicate()[0].strip().splitlines()[-1]) for p in processes]
+
+    def start() -> subprocess.Popen:
+        return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+
+    alone = seconds([start()])[0]
+    both = seconds([start(), start()])
+    each = statistics.mean(both)
+    print(f"gchgg alone: {alone:.2f} s/iteration (in-line evaluation, checkpoints; {iterations} iterations)")
+    print(f"side by side: {each:.2f} s/iteration each ({both[0]:.2f}, {both[1]:.2f}), {each / alone:.2f}x one alone "
+          "(target <= 1.3)")
 
 
 def main() -> None:
@@ -282,14 +326,24 @@ def main() -> None:
                         help="the networks' products (gchgg.linear)")
     parser.add_argument("--overlap", type=int, default=3, metavar="N",
                         help="iterations timed with in-line, background and no evaluation (0: skip)")
+    parser.add_argument("--side-by-side", type=int, default=3, metavar="N",
+                        help="iterations of two gchgg runs at once against one alone, everything on (0: skip)")
+    parser.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)  # a --side-by-side child
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
+    if args.one is not None:  # a child of --side-by-side: one run's iterations, its seconds on the last line
+        print(everything_on(args.one, args.updates, args.threads, args.matmul))
+        return
     env_s, update_s = floor_seconds(50, 100, args.updates, 256, args.matmul)
     floor = env_s + update_s
+    _, fp32_update_s = floor_seconds(1, 1, args.updates, 256, "default")
+    fp32_floor = env_s + fp32_update_s
     print(f"push_new, 50 episodes x 100 steps + {args.updates} updates of 256, threads={args.threads}, "
           f"matmul={args.matmul} ({resolve_matmul(args.matmul)})")
     print(f"floor: {floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare DDPG updates {update_s:.2f} s)")
+    print(f"fp32 floor: {fp32_floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare fp32 DDPG updates with "
+          f"torch's default matmul {fp32_update_s:.2f} s)")
     seconds = {}
     for algo in args.algos:
         seconds[algo], phases = iteration_seconds(algo, args.iterations, args.updates, args.threads,
@@ -309,7 +363,10 @@ def main() -> None:
         print(f"gchgg C=50 / C=1 = {statistics.median(ratios):.2f} (target <= 1.2): the median over "
               f"{len(ratios)} alternating rounds of the ratio within a round ({', '.join(f'{r:.2f}' for r in ratios)})")
     if args.overlap:
-        evaluation_overlap(args.overlap, args.updates, args.threads, args.matmul)
+        on = evaluation_overlap(args.overlap, args.updates, args.threads, args.matmul)
+        print(f"everything on / fp32 floor = {on / fp32_floor:.2f} (target <= 1.0)")
+    if args.side_by_side:
+        side_by_side(args.side_by_side, args.updates, args.threads, args.matmul)
 
 
 if __name__ == "__main__":
