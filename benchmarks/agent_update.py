@@ -185,6 +185,7 @@ def main() -> None:
     bf16_update(onednn, batches, args.rounds, args.updates)
     if args.compile:
         compiled_update(agent, batches, args.rounds, args.updates)
+    act_one(onednn, args.rounds)
     if args.profile:
         profile_update(agent, batches, args.updates, "torch BLAS")
         profile_update(onednn, batches, args.updates, "oneDNN")
@@ -293,6 +294,27 @@ def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> Non
           f"ms/update against {statistics.median(today) * 1e3:.3f}: speed-up "
           f"{statistics.median(today) / statistics.median(compiled):.2f}x (target >= 1.3); actor weights apart by "
           f"up to {drift:.2g} after {rounds * updates + 1} updates")
+
+
+def act_one(agent: DDPGAgent, rounds: int, calls: int = 500) -> None:
+    """``act`` on one observation (the per-episode loop's rollout step): the actor's modules against
+    :class:`~gchgg.agent.SmallBatchActor`, the path ``act`` takes below ``MIN_BATCH`` rows (same actions)."""
+    g = torch.Generator().manual_seed(1)
+    observation, goal = torch.randn(1, agent.obs_dim, generator=g), torch.randn(1, agent.goal_dim, generator=g)
+    paths = {"modules": agent.actor, "SmallBatchActor": agent._small_batch_actor}
+    times: dict[str, list[float]] = {name: [] for name in paths}
+    with torch.no_grad():
+        for _ in range(rounds):
+            for name, forward in paths.items():
+                start = time.perf_counter()
+                for _ in range(calls):
+                    forward(observation, goal)
+                times[name].append((time.perf_counter() - start) / calls)
+        same = torch.equal(paths["modules"](observation, goal), paths["SmallBatchActor"](observation, goal))
+    modules, small = (statistics.median(times[name]) for name in paths)
+    print(f"actor on one observation: modules {modules * 1e6:.1f} us, SmallBatchActor {small * 1e6:.1f} us "
+          f"({modules / small:.2f}x; same actions: {same}; x5,000 rollout steps an iteration: "
+          f"{modules * 5000:.2f} s against {small * 5000:.2f} s)")
 
 
 def profile_update(agent: DDPGAgent, batches, updates: int, name: str) -> None:

@@ -478,3 +478,33 @@ def test_ddpg_learns_the_toy_value_with_reference_networks():
     steps = torch.ceil(((x - goal).abs() - _TOLERANCE).clamp_min(0.0) / _STEP).squeeze(-1)
     v_star = -(1 - 0.98 ** (steps - 1).clamp_min(0)) / (1 - 0.98)
     assert (agent.value(x, goal) - v_star).abs().mean() <= 0.5
+
+
+def test_small_batch_actor_acts_as_the_module_bit_for_bit_after_updates_and_loads():
+    """act() on fewer than MIN_BATCH rows skips the modules (SmallBatchActor); same actions, always."""
+    from gchgg.agent import DDPGAgent, DDPGConfig
+    from gchgg.linear import MIN_BATCH
+
+    g = torch.Generator().manual_seed(0)
+    agent = DDPGAgent(25, 3, 4, DDPGConfig(hidden=(64, 64)), generator=torch.Generator().manual_seed(1))
+    other = DDPGAgent(25, 3, 4, DDPGConfig(hidden=(64, 64)), generator=torch.Generator().manual_seed(2))
+
+    def check():
+        for rows in (1, 7, MIN_BATCH - 1):
+            observation, goal = torch.randn(rows, 25, generator=g), torch.randn(rows, 3, generator=g)
+            assert agent._small_batch_actor.takes(observation, goal)
+            with torch.no_grad():
+                assert torch.equal(agent.act(observation, goal), agent.actor(observation, goal))
+
+    check()
+    batch = TensorDict({
+        "observation": torch.randn(256, 25, generator=g), "desired_goal": torch.randn(256, 3, generator=g),
+        "action": torch.rand(256, 4, generator=g) * 2 - 1,
+        "next": {"observation": torch.randn(256, 25, generator=g), "reward": -torch.ones(256, 1)},
+    }, [256])  # fmt: skip
+    agent.update_normalizer(batch["observation"] * 3 + 1, batch["desired_goal"])
+    agent.update(batch)  # weights and statistics move in place
+    check()
+    agent.load_state_dict(other.state_dict())
+    check()
+    assert not agent._small_batch_actor.takes(torch.randn(MIN_BATCH, 25), torch.randn(MIN_BATCH, 3))
