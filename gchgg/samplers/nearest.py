@@ -217,10 +217,9 @@ class NearestNeighbours:
             order = _sort_order(points[..., self._axis], points[..., ident])
         else:  # equal goals have equal coordinates: a plain sort puts them side by side (but for exact ties)
             order = torch.from_numpy(np.argsort(points[..., self._axis].numpy(), -1))  # faster than torch's here
-        points = points.gather(1, order.unsqueeze(-1).expand(points.shape))
         if goals is not None and not self._snap:
             goals = goals.gather(1, order.unsqueeze(-1).expand(k, b, goals.shape[-1]))
-        vertex = points[..., ident].long()  # [K, B]: -1 off the graph (and 0 for other metrics)
+        vertex = points[..., ident].gather(1, order).long()  # [K, B]: -1 off the graph (and 0 for other metrics)
         # A goal equal to the goal sorted before it (a *repeat*) is as far from every goal as the first
         # goal of its run (its *head*): only heads are searched (a run would fill shortlists with ties
         # and windows with goals at one spot), and a repeat's pair with its head is read (0 for any
@@ -235,17 +234,20 @@ class NearestNeighbours:
         h, reordered = b, int(repeat.sum()) * _REPEATS_FIRST > k * b
         if reordered:  # many repeats (an object at rest): heads first (in axis order), then the repeats,
             # and the search covers the heads only (few repeats are just left out of the shortlists)
-            first = torch.argsort(repeat.to(torch.uint8), dim=1, stable=True)
+            distinct = ~repeat
+            count = distinct.sum(1, keepdim=True)  # heads per batch
+            # old sorted position -> new one: heads in order, then repeats in order (a stable partition)
+            rank = torch.where(repeat, repeat.cumsum(1).add_(count - 1), distinct.cumsum(1).sub_(1))
+            first = torch.empty_like(rank).scatter_(1, rank, positions)  # new position -> old one
             order = order.gather(1, first)
-            points = points.gather(1, first.unsqueeze(-1).expand(points.shape))
             if goals is not None and not self._snap:
                 goals = goals.gather(1, first.unsqueeze(-1).expand(goals.shape))
             vertex = vertex.gather(1, first)
-            rank = torch.empty_like(first).scatter_(1, first, positions)  # old sorted position -> new one
             head = rank.gather(1, head.gather(1, first))
-            heads = int((~repeat).sum(1).max())
-            repeat = positions >= (~repeat).sum(1, keepdim=True)
+            heads = int(count.max())
+            repeat = positions >= count
             h = min(b, -(-heads // self.block) * self.block)  # rounded up: few distinct block layouts
+        points = points.gather(1, order.unsqueeze(-1).expand(points.shape))  # in the order, once
         axis = points[..., self._axis]
         if reordered:  # the repeats after the heads count as beyond every head
             axis = axis.masked_fill(repeat, math.inf)
@@ -270,7 +272,11 @@ class NearestNeighbours:
                                           "diversity metric", (k, h, m))
             nearest = nearest.masked_fill(~found, math.inf).amin(-1)  # [K, h]
         kk, ii = repeat.nonzero(as_tuple=True)
-        twin = pair(ii, head[kk, ii], kk) if len(kk) else None  # each repeat with its head
+        twin = None  # each repeat with its head: as far as the head is from itself
+        if len(kk) and reordered:  # fewer reads: each head with itself, once
+            twin = pair(positions[:, :h], positions[:, :h], torch.arange(k).view(k, 1))[kk, head[kk, ii]]
+        elif len(kk):
+            twin = pair(ii, head[kk, ii], kk)
         if twin is not None:  # a head with repeats is that far from them
             flat = nearest.reshape(-1).scatter_reduce(0, kk * h + head[kk, ii], twin, reduce="amin")
             nearest = flat.view(k, h)
@@ -305,28 +311,31 @@ class NearestNeighbours:
         unproven (a goal beyond that range may be nearer; none when ``reach >= B``)."""
         k, b = unproven.shape
         kk, ii = unproven.nonzero(as_tuple=True)  # [U]
-        if reach >= b - 1:  # every goal of the batch, once
-            cols = torch.arange(b).expand(len(ii), b)
-        else:  # [U, W] sorted positions
-            cols = (ii.unsqueeze(1) + torch.arange(-reach, reach + 1)).clamp_(0, b - 1)
-        at = cols.add((kk * b).unsqueeze(1)).view(-1)
-        own = kk * b + ii
-        straight, dim = None, points.shape[-1] - 3
-        # a difference per coordinate plane is fast
-        for plane in points[..., :dim].permute(2, 0, 1).reshape(dim, k * b):
-            term = plane.index_select(0, at).view(cols.shape).sub_(plane.index_select(0, own).unsqueeze(1)).square_()
-            straight = term if straight is None else straight.add_(term)
-        straight.sqrt_().sub_(self._tolerance()).masked_fill_(cols == ii.unsqueeze(1), math.inf)  # not itself
-        straight.masked_fill_(repeat.reshape(-1).index_select(0, at).view(cols.shape), math.inf)
+        reach = min(reach, b - 1)
+        width, dim = 2 * reach + 1, points.shape[-1] - 3
+        # Each unproven goal's window of sorted positions ii - reach ... ii + reach, one gather of the
+        # padded positions' sliding windows; padding, the goal itself and repeats are excluded.
+        planes = points.new_zeros(dim, k, b + 2 * reach)  # coordinate planes, padded
+        planes[:, :, reach : reach + b] = points[..., :dim].permute(2, 0, 1)
+        squared = None  # [U, W]: straight line, squared
+        for plane in planes:
+            term = plane.unfold(1, width, 1)[kk, ii].sub_(plane[kk, ii + reach].unsqueeze(1)).square_()
+            squared = term if squared is None else squared.add_(term)
+        skip = repeat.new_ones(k, b + 2 * reach)
+        skip[:, reach : reach + b] = repeat
+        excluded = skip.unfold(1, width, 1)[kk, ii]
+        excluded[:, reach] = True  # not itself
+        squared.masked_fill_(excluded, math.inf)
+        cols = (ii.unsqueeze(1) + torch.arange(-reach, reach + 1)).clamp_(0, b - 1)  # [U, W] sorted positions
         # First the straight-line nearest goal: for a metric close to the straight line its distance
         # is (almost) the answer and leaves few goals to read below; clustered goals (an object at
         # rest) would otherwise have most of the range read.
-        first = straight.argmin(-1, keepdim=True)
+        low, first = squared.min(-1, keepdim=True)
         read = pair(ii, cols.gather(1, first).squeeze(1), kk)
-        # (a row with every candidate masked has nothing to read: its argmin may point at itself)
-        best = torch.where(straight.gather(1, first).squeeze(1).isfinite(), torch.minimum(nearest[kk, ii], read),
-                           nearest[kk, ii])
-        uu, ww = (straight < best.unsqueeze(-1)).nonzero(as_tuple=True)
+        # (a row with every candidate excluded has nothing to read)
+        best = torch.where(low.squeeze(1).isfinite(), torch.minimum(nearest[kk, ii], read), nearest[kk, ii])
+        # nearer in a straight line, less the tolerance, than the best: |p - q| - tol < best
+        uu, ww = (squared < best.add(self._tolerance()).square_().unsqueeze(-1)).nonzero(as_tuple=True)
         if len(uu):
             best = best.scatter_reduce(0, uu, pair(ii[uu], cols[uu, ww], kk[uu]), reduce="amin")
             nearest = nearest.index_put((kk, ii), best)
