@@ -19,7 +19,8 @@ the same raw steps plus bare fp32 updates with torch's default matmul; last, two
 processes at once against one alone, each as training runs by default (``--side-by-side``).
 
 The networks' products run on ``--matmul`` (default ``auto``, the trainer's default: oneDNN where
-torch has it), the bare updates of the floor too.
+torch has it), the bare updates of the floor too; the trainers' updates in the training default
+``precision=auto`` (bfloat16 where oneDNN computes it natively), the floors' bare updates in float32.
 
     python benchmarks/iteration.py [--iterations 3] [--updates 1000] [--threads 1] [--chunks 1 5 50]
                                    [--matmul auto] [--overlap 3]
@@ -49,7 +50,7 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
 from gchgg.evaluator import BackgroundEvaluator  # noqa: E402
-from gchgg.linear import MATMUL_BACKENDS, resolve_matmul, use_onednn  # noqa: E402
+from gchgg.linear import MATMUL_BACKENDS, resolve_matmul, resolve_precision, use_onednn  # noqa: E402
 from gchgg.rollout import collect  # noqa: E402
 from gchgg.train import CONF_DIR, Trainer  # noqa: E402
 
@@ -340,7 +341,8 @@ def main() -> None:
     _, fp32_update_s = floor_seconds(1, 1, args.updates, 256, "default")
     fp32_floor = env_s + fp32_update_s
     print(f"push_new, 50 episodes x 100 steps + {args.updates} updates of 256, threads={args.threads}, "
-          f"matmul={args.matmul} ({resolve_matmul(args.matmul)})")
+          f"matmul={args.matmul} ({resolve_matmul(args.matmul)}), precision=auto "
+          f"({resolve_precision('auto', args.matmul)}, the training default)")
     print(f"floor: {floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare DDPG updates {update_s:.2f} s)")
     print(f"fp32 floor: {fp32_floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare fp32 DDPG updates with "
           f"torch's default matmul {fp32_update_s:.2f} s)")

@@ -38,7 +38,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import MLP
 
-from gchgg.linear import MIN_BATCH, products_in, resolve_matmul, resolve_precision, use_onednn
+from gchgg.linear import MIN_BATCH, products_in, resolve_precision, use_onednn
 from gchgg.validation import check_number
 
 __all__ = [
@@ -503,9 +503,11 @@ class DDPGAgent:
             (``"auto"``: oneDNN where this torch has it). Speed only: it is not a hyperparameter,
             is not saved, and a state loads under any backend.
         precision: the dtype of those products in :meth:`update`, one of :data:`gchgg.linear.PRECISIONS`:
-            ``"float32"`` (default) or ``"bfloat16"`` (oneDNN's native bfloat16 products on CPUs with
-            AVX-512 BF16 or AMX; ``benchmarks/agent_update.py --precision bfloat16`` times it). Unlike
-            ``matmul`` it changes the numbers (rounding), so runs record it; acting stays float32.
+            ``"float32"`` (default: the math as written), ``"bfloat16"`` (oneDNN's native bfloat16
+            products on CPUs with AVX-512 BF16 or AMX; ``benchmarks/agent_update.py`` times it) or
+            ``"auto"`` (bfloat16 where that is native, what training uses by default; resolved into
+            :attr:`precision` by :func:`gchgg.linear.resolve_precision`). Unlike ``matmul`` it changes
+            the numbers (rounding), so runs record it; acting stays float32.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
     The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
@@ -563,10 +565,7 @@ class DDPGAgent:
             actor, critic, gamma=config.gamma, action_l2=config.action_l2, clip_return=config.clip_return
         )
         use_onednn(self.loss_module, matmul)  # the online and the target networks
-        self.precision = resolve_precision(precision)
-        if precision != "float32" and resolve_matmul(matmul) != "onednn":
-            raise ValueError(f"precision={precision!r} computes the products with oneDNN, but matmul={matmul!r} "
-                             "resolves to torch's BLAS; use matmul=auto or matmul=onednn, or precision=float32")
+        self.precision = resolve_precision(precision, matmul)  # "auto" -> what this machine does well
         # fused Adam: one kernel per step instead of several per parameter
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)

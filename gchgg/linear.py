@@ -48,10 +48,12 @@ rows, and so does the whole update with them on oneDNN (``benchmarks/agent_updat
 times it with the hidden layers alone)."""
 
 
-PRECISIONS = ("float32", "bfloat16")
+PRECISIONS = ("auto", "float32", "bfloat16")
 """The dtype of the wide layers' products inside :func:`products_in`: ``float32`` (the math as
 written) or ``bfloat16`` (inputs and weights rounded to bfloat16, float32 accumulation, results
-rounded to bfloat16 and returned as float32; parameters, gradients and optimiser state stay float32)."""
+rounded to bfloat16 and returned as float32; parameters, gradients and optimiser state stay float32);
+``auto``: ``bfloat16`` where oneDNN computes it natively and the products run on oneDNN, else
+``float32`` (:func:`resolve_precision`)."""
 
 _product_dtype = torch.float32  # set by products_in
 
@@ -168,20 +170,33 @@ def bf16_available() -> bool:
     return onednn_available() and bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 
-def resolve_precision(precision: str) -> str:
-    """Check a ``precision`` setting (one of :data:`PRECISIONS`) against this machine; returns it.
+def resolve_precision(precision: str, matmul: str = "auto") -> str:
+    """The products' dtype a ``precision`` setting (one of :data:`PRECISIONS`) selects on this machine
+    with the products on ``matmul``: ``"float32"`` or ``"bfloat16"``.
+
+    ``auto`` is ``bfloat16`` where it is fast and its learning was measured unchanged: oneDNN with
+    native bfloat16 products (AVX-512 BF16 or AMX) and ``matmul`` resolving to oneDNN; else
+    ``float32``. (push_new GC-HGG over 3 seeds reached 0.9 within the float32 runs' range, reach by
+    iteration 10: ``docs/results/push_new/RUNS.md``; one update is ~1.2x faster:
+    ``benchmarks/agent_update.py``.)
 
     Raises:
-        ValueError: ``precision`` is not one of :data:`PRECISIONS`.
+        ValueError: ``precision`` is not one of :data:`PRECISIONS`, or ``bfloat16`` with ``matmul``
+            resolving to torch's BLAS.
         RuntimeError: ``bfloat16`` on a CPU or torch build without native bfloat16 oneDNN products.
     """
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+    if precision == "auto":
+        return "bfloat16" if bf16_available() and resolve_matmul(matmul) == "onednn" else "float32"
     if precision == "bfloat16" and not bf16_available():
         raise RuntimeError(
             "precision='bfloat16' needs oneDNN with native bfloat16 products (AVX-512 BF16 or AMX), which this "
-            "CPU or torch build lacks; use precision=float32"
+            "CPU or torch build lacks; use precision=auto or precision=float32"
         )
+    if precision == "bfloat16" and resolve_matmul(matmul) != "onednn":
+        raise ValueError(f"precision='bfloat16' computes the products with oneDNN, but matmul={matmul!r} "
+                         "resolves to torch's BLAS; use matmul=auto or matmul=onednn, or precision=float32")
     return precision
 
 

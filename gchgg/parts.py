@@ -133,7 +133,7 @@ def make_parts(cfg: DictConfig) -> Parts:
     )  # fmt: skip
     agent = DDPGAgent(env.obs_dim, 3, env.action_dim, agent_config(cfg),
                       generator=torch.Generator().manual_seed(seeds["agent"]), matmul=cfg.matmul,
-                      precision=cfg.get("precision", "float32"))
+                      precision=cfg.precision)
     goal_generator = None
     if algo.goal_generator != "none":
         goal_generator = make_goal_generator(
@@ -196,7 +196,7 @@ def check_config(cfg: DictConfig) -> None:
         )
     check_choice("agent.normalizer_source", cfg.agent.normalizer_source, NORMALIZER_SOURCES)
     check_choice("matmul", cfg.matmul, MATMUL_BACKENDS)
-    check_choice("precision", cfg.get("precision", "float32"), PRECISIONS)
+    check_choice("precision", cfg.precision, PRECISIONS)
     loggers.check_backends(cfg.logging.backend)  # a known name, its package installed
     if cfg.train.stop_success is not None:
         check_number("train.stop_success (a success rate, or null)", cfg.train.stop_success, low=0, high=1)

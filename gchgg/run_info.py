@@ -14,7 +14,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from gchgg import loggers
-from gchgg.linear import resolve_matmul
+from gchgg.linear import resolve_matmul, resolve_precision
 
 __all__ = ["open_loggers", "requeued", "startup_record", "tracker_names", "versions"]
 
@@ -41,6 +41,7 @@ def open_loggers(cfg: DictConfig, run_dir: Path) -> loggers.RunLoggers:
         **OmegaConf.to_container(cfg, resolve=True),
         "versions": versions(),
         "matmul_resolved": resolve_matmul(cfg.matmul),
+        "precision_resolved": resolve_precision(cfg.precision, cfg.matmul),
     }
     settings = cfg.logging
     return loggers.make_loggers(
@@ -74,9 +75,10 @@ def versions() -> dict[str, str]:
 def startup_record(cfg: DictConfig) -> str:
     """The run's resolved settings and the installed versions, as logged once at start-up."""
     packages = ", ".join(f"{k} {v}" for k, v in versions().items())
-    matmul = cfg.matmul
+    matmul, precision = cfg.matmul, cfg.precision
     return (
         f"versions: {packages}\nmatmul: {matmul} -> {resolve_matmul(matmul)}\n"
+        f"precision: {precision} -> {resolve_precision(precision, matmul)}\n"
         f"resolved config:\n{OmegaConf.to_yaml(cfg, resolve=True)}"
     )
 

@@ -200,11 +200,16 @@ class Trainer:
         }
 
     def identity(self) -> dict:
-        """What a checkpoint must agree on to be resumed by this trainer: task, algorithm, seed."""
-        return {"env": self.cfg.env.name, "algo": self.cfg.algo.name, "seed": int(self.cfg.seed)}
+        """What a checkpoint must agree on to be resumed by this trainer: task, algorithm, seed and the
+        products' dtype as resolved (``precision=auto`` resolves by machine; checkpoints from before it
+        was recorded were float32)."""
+        return {"env": self.cfg.env.name, "algo": self.cfg.algo.name, "seed": int(self.cfg.seed),
+                "precision": self.agent.precision}
 
     def load_state_dict(self, state: dict) -> None:
         saved = state.get("run")
+        if saved is not None:
+            saved = {"precision": "float32", **saved}
         if saved is not None and saved != self.identity():
             differences = ", ".join(
                 f"{key}: checkpoint {saved.get(key)!r}, this run {value!r}"

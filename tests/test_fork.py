@@ -23,6 +23,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from test_train import config, tiny  # noqa: E402
 
 from gchgg import checkpoint, fork, train  # noqa: E402
+from gchgg.linear import resolve_precision  # noqa: E402
 
 SOURCE_ITERATIONS = 3  # the forks start at iteration 3, after warm-up (2 iterations) and one of updates
 
@@ -102,7 +103,8 @@ def test_a_ghgg_checkpoint_forked_as_gchgg_logs_the_changes_and_starts_at_the_so
     assert filled[:SOURCE_ITERATIONS] == [{k: v for k, v in row.items() if v} for row in metrics(source)]
     assert all(row["lambda"] and row["diversity_decided"] for row in rows[SOURCE_ITERATIONS:])  # the curriculum's
     assert not any(row["lambda"] for row in rows[:SOURCE_ITERATIONS])
-    assert checkpoint.load(curriculum_fork / "checkpoint.pt")["run"] == {"env": "reach", "algo": "gchgg", "seed": 7}
+    assert checkpoint.load(curriculum_fork / "checkpoint.pt")["run"] == {
+        "env": "reach", "algo": "gchgg", "seed": 7, "precision": resolve_precision("auto")}
 
     # its pair: the same checkpoint and seed as G-HGG: the same targets and goals at the fork point
     pair = graphs / "fork-ghgg-7"
@@ -188,7 +190,7 @@ def test_a_setting_added_since_the_source_ran_is_named_with_a_hint(graphs, sourc
         saved.pop(key)
     OmegaConf.save(saved, source / "config.yaml")
     cfg = config(overrides(graphs, "ghgg", "seed=7", "train.iterations=5", f"init_from={source}"))
-    assert fork.prepare(cfg, tmp_path / "fork", train.CHECKPOINT).changes["precision"] == ("<absent>", "float32")
+    assert fork.prepare(cfg, tmp_path / "fork", train.CHECKPOINT).changes["precision"] == ("<absent>", "auto")
 
     saved.her.pop("strategy")
     OmegaConf.save(saved, source / "config.yaml")

@@ -21,7 +21,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from test_train import config, tiny  # noqa: E402
 
 from gchgg import checkpoint, train  # noqa: E402
-from gchgg.linear import onednn_available  # noqa: E402
+from gchgg.linear import onednn_available, resolve_precision  # noqa: E402
 
 ITERATIONS = 8
 
@@ -159,6 +159,22 @@ def test_resuming_another_runs_checkpoint_is_refused_naming_the_difference(tmp_p
     train.run(config(base), run_dir)
     with pytest.raises(ValueError, match=f"another run .*{named}: checkpoint"):
         train.run(config([*base, override, "train.iterations=2", "resume=true"]), run_dir)
+
+
+@pytest.mark.skipif(resolve_precision("auto") == "float32", reason="precision=auto is float32 on this machine")
+def test_a_run_keeps_its_precision_when_resumed(tmp_path):
+    """precision=auto resolves by machine: a float32 run resumed under the bfloat16 default is refused, and
+    a checkpoint from before the precision was recorded counts as float32."""
+    run_dir = tmp_path / "run"
+    base = ["env=reach", "algo=her", *tiny(tmp_path), "precision=float32"]
+    train.run(config(base), run_dir)
+    with pytest.raises(ValueError, match="another run .*precision: checkpoint 'float32', this run 'bfloat16'"):
+        train.run(config([*base[:-1], "train.iterations=2", "resume=true"]), run_dir)
+    state = checkpoint.load(run_dir / "checkpoint.pt")
+    del state["run"]["precision"]  # as written before 2026-12-04
+    checkpoint.save(state, run_dir / "checkpoint.pt")
+    train.run(config([*base, "train.iterations=2", "resume=true"]), run_dir)
+    assert checkpoint.load(run_dir / "checkpoint.pt")["run"]["precision"] == "float32"
 
 
 ONEDNN = ("agent.hidden=[64,64]", "train.batch_size=64", "eval.episodes=64", "matmul=onednn")  # oneDNN engaged

@@ -182,9 +182,14 @@ def test_bfloat16_products_are_float32_results_of_rounded_inputs():
     torch.testing.assert_close(layer(x).double(), x.detach().double() @ w.double().T + b.double(), rtol=1e-5, atol=1e-5)
 
 
-def test_precision_setting_is_checked():
-    with pytest.raises(ValueError, match="precision must be one of \\['float32', 'bfloat16'\\], got 'fp16'"):
+def test_precision_setting_is_checked_and_auto_resolves_by_machine():
+    with pytest.raises(ValueError, match="precision must be one of \\['auto', 'float32', 'bfloat16'\\], got 'fp16'"):
         linear.resolve_precision("fp16")
+    native = linear.bf16_available() and linear.resolve_matmul("auto") == "onednn"
+    assert linear.resolve_precision("auto") == ("bfloat16" if native else "float32")
+    assert linear.resolve_precision("auto", "default") == "float32"  # torch's BLAS: no bfloat16 products
+    assert DDPGAgent(5, 3, 2, hidden=(32,), precision="auto", matmul="default").precision == "float32"
+    assert DDPGAgent(5, 3, 2, hidden=(32,)).precision == "float32"  # the library's default: the math as written
     if linear.bf16_available():
         with pytest.raises(ValueError,
                            match="precision='bfloat16' computes the products with oneDNN, but matmul='default'"):
