@@ -163,11 +163,10 @@ def checkpoint_cost(trainer: Trainer, run_dir: Path) -> None:
 
 
 def trainer_rollout(trainer: Trainer):
-    """One chunk of random-action episodes from the trainer's env, with the T* key the trainer adds."""
+    """One chunk of random-action episodes from the trainer's env."""
     start = trainer.env.reset()
     rollout = collect(trainer.env, lambda obs, goal: trainer.agent.random_action(len(obs), trainer.explore_rng),
                       trainer.steps, start)
-    rollout.set("task_goal", rollout["desired_goal"].clone())
     return rollout
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gchgg import checkpoint
+from gchgg import replay_log
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,7 +35,7 @@ def main() -> None:
     if missing:
         raise SystemExit(f"--iterations {args.iterations}: replay files missing (pruned, or not written yet): "
                          f"{', '.join(missing[:3])}{' …' if len(missing) > 3 else ''}")
-    goals = torch.cat([checkpoint.load(f)["rows"]["achieved_goal"].reshape(-1, 3) for f in files])
+    goals = torch.cat([replay_log.read(f)["rows"]["achieved_goal"].reshape(-1, 3) for f in files])
     if args.size > len(goals):
         raise SystemExit(f"--size {args.size} is more than the {len(goals):,} rows of the first {args.iterations} "
                          "iterations")

@@ -70,7 +70,6 @@ DEFAULT_THREADS = torch.get_num_threads()  # torch's own choice, before main() s
 def memory(graph: GoalGraph) -> None:
     env = envs.make("push_new", num_envs=2, seed=0)
     rollout = env.rollout(env_steps(env), break_when_any_done=False)
-    rollout.set("task_goal", rollout["desired_goal"].clone())  # T*, stored by the trainer for eq. 15
     energy, her = relabel(torch.Generator().manual_seed(0))
     transitions = her(energy(rollout))
     per_transition = transitions.bytes() / transitions.numel()
@@ -330,7 +329,7 @@ def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False)
     def rows(count: int) -> TensorDict:
         return TensorDict({
             "observation": torch.randn(count, 25, generator=generator), "desired_goal": goals(count),
-            "target_goal": goals(count), "action": torch.rand(count, 3, generator=generator) * 2 - 1,
+            "task_goal": goals(count), "action": torch.rand(count, 3, generator=generator) * 2 - 1,
             "next": {"observation": torch.randn(count, 25, generator=generator), "reward": -torch.ones(count, 1)},
         }, [count])  # fmt: skip
 

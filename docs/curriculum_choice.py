@@ -55,7 +55,7 @@ from omegaconf import OmegaConf  # noqa: E402
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg import checkpoint  # noqa: E402
+from gchgg import replay_log  # noqa: E402
 from gchgg.builders import make_metric, make_sampler  # noqa: E402
 
 STATS = ("own goal", "reward 0", "reward 0 (own goal)", "goal > 2 cm up", "goal > 10 cm up", "reward 0, goal > 2 cm up",
@@ -71,7 +71,7 @@ def load_buffer(run: Path, iteration: int, capacity: int) -> LazyTensorStorage:
                          f"(it holds {len(files)} files up to it)")
     storage = LazyTensorStorage(capacity)
     for path in files:
-        saved = checkpoint.load(path)
+        saved = replay_log.read(path)  # rows under today's key names
         storage.set(saved["index"], saved["rows"])
     return storage
 
@@ -91,7 +91,7 @@ def run_lambda(run: Path, iteration: int) -> float | None:
 
 def batch_stats(batch, start_height: float | None) -> dict[str, float]:
     """The statistics of one sampled batch (see the module docstring)."""
-    own = (batch["desired_goal"] == batch["target_goal"]).all(-1)
+    own = (batch["desired_goal"] == batch["episode_goal"]).all(-1)
     success = batch["next", "reward"].reshape(-1) == 0
     stats = {
         "own goal": own.float().mean().item(),

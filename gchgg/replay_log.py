@@ -17,6 +17,10 @@ lists are deleted only after a later checkpoint that no longer needs them has be
 file that is missing, truncated or altered is an error naming it, never used.
 
 Bytes written per iteration: that iteration's new rows, once.
+
+Files written before the goals were renamed (December 2026) hold the goal an episode was collected
+for as ``target_goal``; :func:`read` gives it its name now, ``episode_goal`` (:data:`RENAMED`), so
+runs and forks started before the rename resume, and scripts reading replay files see one name.
 """
 
 from __future__ import annotations
@@ -29,9 +33,24 @@ from torchrl.data.replay_buffers.storages import Storage
 
 from gchgg import checkpoint
 
-__all__ = ["ReplayLog"]
+__all__ = ["RENAMED", "ReplayLog", "read"]
 
 _PATTERN = "iteration-{:06d}.pt"
+RENAMED = {"target_goal": "episode_goal"}  # stored key in older replay files -> its name now
+
+
+def read(path: Path) -> dict:
+    """A replay file's ``{"iteration", "index", "rows"}``, its rows under today's key names (:data:`RENAMED`).
+
+    Raises:
+        gchgg.checkpoint.CorruptCheckpointError: the file is truncated, altered or not a replay file.
+    """
+    saved = checkpoint.load(path)
+    rows = saved["rows"]
+    for old, new in RENAMED.items():
+        if old in rows.keys():
+            rows.rename_key_(old, new)
+    return saved
 
 
 class ReplayLog:
@@ -96,7 +115,7 @@ class ReplayLog:
                     f"replay file {path} is missing: the checkpoint lists it as holding rows of the replay "
                     f"buffer; the run cannot resume exactly without it"
                 )
-            saved = checkpoint.load(path)
+            saved = read(path)
             storage.set(saved["index"], saved["rows"])
             self._files.append((name, saved["index"]))
 

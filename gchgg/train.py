@@ -133,7 +133,8 @@ class Trainer:
             stats.add_episodes(rollout, self.geometry if self.env.has_object else None, self.achieved_key)
             lap("rollout")
 
-            rollout.set("task_goal", targets[rows].unsqueeze(1).expand(n, self.steps, 3))  # T*, for eq. 15
+            if self.goal_generator is not None:  # collected for intermediate goals: each episode's T* (eq. 15)
+                rollout.set("task_goal", targets[rows].unsqueeze(1).expand(n, self.steps, 3))
             transitions = self.relabel(rollout)
             self.replay_log.record(self.iteration, self.buffer.extend(transitions), transitions)
             if cfg.agent.normalizer_source == "collected":

@@ -70,6 +70,26 @@ def test_replay_log_keeps_the_files_with_live_rows_and_restores_the_storage(tmp_
     assert restored.get(torch.arange(6))["x"][:, 0].tolist() == [3.0, 2.0, 3.0, 1.0, 1.0, 1.0]
 
 
+def test_replay_files_written_before_the_goal_rename_restore_under_todays_names(tmp_path):
+    """A run started before December 2026 stored the goal its episodes were collected for as target_goal:
+    resumed (or forked) now, its rows hold it as episode_goal."""
+    from tensordict import TensorDict
+    from torchrl.data import LazyTensorStorage
+
+    from gchgg import replay_log
+
+    index = torch.arange(3)
+    old = TensorDict({"desired_goal": torch.zeros(3, 3), "target_goal": torch.ones(3, 3),
+                      "task_goal": torch.full((3, 3), 2.0)}, [3])
+    checkpoint.save({"iteration": 0, "index": index, "rows": old}, tmp_path / "iteration-000000.pt")
+    assert set(replay_log.read(tmp_path / "iteration-000000.pt")["rows"].keys()) == {
+        "desired_goal", "episode_goal", "task_goal"}
+    restored = LazyTensorStorage(3)
+    replay_log.ReplayLog(tmp_path, capacity=3).restore(["iteration-000000.pt"], restored)
+    rows = restored.get(index)
+    assert torch.equal(rows["episode_goal"], torch.ones(3, 3)) and "target_goal" not in rows.keys()
+
+
 def test_remove_temporaries_deletes_only_what_a_killed_save_left(tmp_path):
     checkpoint.save({"a": 1}, tmp_path / "checkpoint.pt")
     (tmp_path / ".checkpoint.pt.abc123.tmp").write_bytes(b"partial")

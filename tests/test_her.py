@@ -105,12 +105,27 @@ def test_rewards_targets_and_originals():
     assert out["next", "reward"].dtype == data["next", "reward"].dtype
     assert torch.equal(out["next", "reward"].squeeze(-1), reward(achieved_next, out["desired_goal"]))
     assert (out["next", "reward"] == 0).any() and (out["next", "reward"] == -1).any()
-    # every copy keeps the episode's target; copy 0 is the original transition
+    # every copy keeps the goal its episode was collected for, which is its task's goal here (no task_goal
+    # in the episode); copy 0 is the original transition
     view = out.view(num, k + 1, steps)
-    assert torch.equal(view["target_goal"], data["desired_goal"][:, None].expand(num, k + 1, steps, 3))
+    assert torch.equal(view["episode_goal"], data["desired_goal"][:, None].expand(num, k + 1, steps, 3))
+    assert torch.equal(view["task_goal"], view["episode_goal"])
     assert torch.equal(view[:, 0]["desired_goal"], data["desired_goal"])
     for key in ("observation", "action", ("next", "observation"), ("next", "done"), ("next", "truncated")):
         assert torch.equal(view[key], data[key][:, None].expand_as(view[key])), key
+
+
+def test_an_episode_collected_for_an_intermediate_goal_keeps_its_task_goal():
+    """HGG collects an episode for an intermediate goal and names its target task's goal T* under task_goal:
+    every transition, relabelled or not, keeps both; desired_goal is relabelled."""
+    num, k, steps = 3, 2, 6
+    data = episodes(num, steps)
+    task = torch.arange(num * 3, dtype=torch.float32).view(num, 1, 3).expand(num, steps, 3)
+    data.set("task_goal", task.clone())
+    view = relabel("future", k)(data).view(num, k + 1, steps)
+    assert torch.equal(view["task_goal"], task[:, None].expand(num, k + 1, steps, 3))
+    assert torch.equal(view["episode_goal"], data["desired_goal"][:, None].expand(num, k + 1, steps, 3))
+    assert not torch.equal(view[:, 1:]["desired_goal"], view[:, 1:]["episode_goal"])
 
 
 def test_layout_flatten_and_dropped_keys():
@@ -126,7 +141,7 @@ def test_layout_flatten_and_dropped_keys():
     keys = set(flat.keys(True, True))
     for dropped in ("is_success", ("next", "is_success"), ("next", "desired_goal"), "done", "terminated"):
         assert dropped not in keys
-    assert {"target_goal", "achieved_goal", ("next", "achieved_goal"), ("next", "terminated")} <= keys
+    assert {"episode_goal", "task_goal", "achieved_goal", ("next", "achieved_goal"), ("next", "terminated")} <= keys
     restored = GoalToNext()(flat.clone())
     assert torch.equal(restored["next", "desired_goal"], flat["desired_goal"])
 
@@ -170,7 +185,7 @@ def test_stored_transition_fits_the_memory_budget():
     per_transition = out.bytes() / out.numel()
     total = per_transition * 10_000 * 5 * 100
     print(f"one stored transition: {per_transition:.0f} bytes; 10,000 push_new episodes: {total / 1e9:.2f} GB")
-    assert per_transition == 271  # 2 × obs 100 + action 12 + 4 goals 48 + next ag 12 + reward, energy 8 + 3 flags
+    assert per_transition == 283  # 2 × obs 100 + action 12 + 5 goals 60 + next ag 12 + reward, energy 8 + 3 flags
     assert total <= 2e9
 
 

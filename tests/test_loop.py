@@ -102,7 +102,7 @@ def test_episodes_after_iteration_0_go_to_the_generators_goals_and_store_their_t
     steps = t.steps
     episode = t.buffer.storage[torch.arange(len(t.buffer) - 2 * steps, len(t.buffer))]
     assert torch.allclose(episode["desired_goal"][:steps], last.goals[-1].float().expand(steps, 3), atol=1e-6)
-    assert torch.allclose(episode["target_goal"], last.goals[-1].float().expand(2 * steps, 3), atol=1e-6)
+    assert torch.allclose(episode["episode_goal"], last.goals[-1].float().expand(2 * steps, 3), atol=1e-6)
     assert torch.allclose(episode["task_goal"], targets[-1].float().expand(2 * steps, 3), atol=1e-6)
 
 

@@ -35,7 +35,7 @@ def plain_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 def transitions(num: int, dim: int, seed: int = 0) -> TensorDict:
     g = torch.Generator().manual_seed(seed)
     return TensorDict({"desired_goal": torch.rand(num, dim, generator=g) * 2 - 1,
-                       "target_goal": torch.full((num, dim), 0.5)}, [num])
+                       "task_goal": torch.full((num, dim), 0.5)}, [num])
 
 
 def buffer_of(sampler, data: TensorDict, seed: int = 0, batch: int = 64, size: int | None = None):
@@ -65,11 +65,11 @@ def test_curriculum_chooses_the_best_candidate_for_goals_of_any_dimension(dim, s
     candidates = torch.randint(stored, (1, k, b), generator=torch.Generator().manual_seed(3))[0]  # draw_ahead=1
     scores = []
     for index in candidates:
-        div, prox = brute_objectives(data["desired_goal"][index], data["target_goal"][index], plain_distance)
+        div, prox = brute_objectives(data["desired_goal"][index], data["task_goal"][index], plain_distance)
         scores.append(div + lam * prox)
     batch = buffer.sample()
     assert torch.equal(batch["index"], candidates[int(np.argmax(scores))])
-    div, prox = brute_objectives(batch["desired_goal"], batch["target_goal"], plain_distance)
+    div, prox = brute_objectives(batch["desired_goal"], batch["task_goal"], plain_distance)
     assert batch["diversity"][0].item() == pytest.approx(div, rel=1e-4)
     assert batch["proximity"][0].item() == pytest.approx(prox, rel=1e-4)
 
@@ -129,7 +129,7 @@ def test_curriculum_with_a_2d_graph_chooses_by_graph_distances():
     graph = graph_2d()
     k, b, lam = 4, 48, 1.0
     data = transitions(2_000, 2, seed=1)
-    data["target_goal"] = torch.tensor([0.0, -0.5]).expand(2_000, 2).clone()
+    data["task_goal"] = torch.tensor([0.0, -0.5]).expand(2_000, 2).clone()
     sampler = GraphCurriculumSampler(graph, k, lam, draw_ahead=1, unreachable_distance=3.0)
     buffer = buffer_of(sampler, data, seed=5, batch=b)
     candidates = torch.randint(2_000, (1, k, b), generator=torch.Generator().manual_seed(5))[0]
@@ -140,7 +140,7 @@ def test_curriculum_with_a_2d_graph_chooses_by_graph_distances():
 
     scores = []
     for index in candidates:
-        goals, targets = data["desired_goal"][index], data["target_goal"][index]
+        goals, targets = data["desired_goal"][index], data["task_goal"][index]
         pairs = graph_distance(goals[:, None], goals[None, :])
         pairs.fill_diagonal_(math.inf)
         div = float(pairs.min(1).values.nan_to_num(posinf=0.0).sum())
@@ -155,18 +155,18 @@ def test_cher_and_ebp_take_goals_of_any_dimension():
     batch = buffer_of(CherSampler(pool_size=200, tradeoff=1.0), data, batch=32).sample()
     assert batch["desired_goal"].shape == (32, 2)
     assert batch["proximity"][0].item() == pytest.approx(
-        -float(plain_distance(batch["desired_goal"], batch["target_goal"]).sum()), rel=1e-5
+        -float(plain_distance(batch["desired_goal"], batch["task_goal"]).sum()), rel=1e-5
     )
     assert buffer_of(EnergySampler(), data, batch=32).sample()["desired_goal"].shape == (32, 2)
 
 
 def test_shapes_are_checked_where_they_enter():
     data = transitions(200, 2)
-    data["target_goal"] = torch.zeros(200, 3)
+    data["task_goal"] = torch.zeros(200, 3)
     for sampler in (GraphCurriculumSampler(EuclideanMetric(), 4), CherSampler(pool_size=100)):
-        with pytest.raises(ValueError, match=r"'target_goal'.*\[2\].*\(3,\)"):
+        with pytest.raises(ValueError, match=r"'task_goal'.*\[2\].*\(3,\)"):
             buffer_of(sampler, data, batch=16).sample()
-    scalar = TensorDict({"desired_goal": torch.rand(200), "target_goal": torch.rand(200)}, [200])
+    scalar = TensorDict({"desired_goal": torch.rand(200), "task_goal": torch.rand(200)}, [200])
     with pytest.raises(ValueError, match=r"'desired_goal'.*a 1-D goal is stored as \[1\].*\(\)"):
         buffer_of(GraphCurriculumSampler(EuclideanMetric(), 4), scalar, batch=16).sample()
     # 3-D goals, 2-D graph
@@ -207,7 +207,7 @@ def test_a_float64_metric_is_cast_and_a_wrong_shape_refused():
         batch = buffer_of(sampler, data, batch=32).sample()
         assert batch["proximity"].dtype == torch.float32
         assert batch["proximity"][0].item() == pytest.approx(
-            -float(plain_distance(batch["desired_goal"], batch["target_goal"]).sum()), rel=1e-5
+            -float(plain_distance(batch["desired_goal"], batch["task_goal"]).sum()), rel=1e-5
         )
     for sampler in (GraphCurriculumSampler(FlatMetric(), 4, 1.0), CherSampler(FlatMetric(), pool_size=300)):
         with pytest.raises(ValueError, match=r"one distance per pair.*shape \((3000|300),\).*got shape \(\)"):
@@ -339,7 +339,7 @@ def test_writes_skip_the_candidates_they_reach_and_keep_the_others():
             written_since_draw |= set(index.tolist())
             assert not written_since_draw & set(batch["index"].tolist())
         stored = buffer[:]
-        div, prox = brute_objectives(stored["desired_goal"][batch["index"]], stored["target_goal"][batch["index"]],
+        div, prox = brute_objectives(stored["desired_goal"][batch["index"]], stored["task_goal"][batch["index"]],
                                      plain_distance)
         assert batch["diversity"][0].item() == pytest.approx(div, rel=1e-4)  # scored from the rows as they are now
         assert batch["proximity"][0].item() == pytest.approx(prox, rel=1e-4)

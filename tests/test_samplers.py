@@ -38,7 +38,7 @@ def goal_transitions(num: int, seed: int = 0, energy: torch.Tensor | None = None
     g = torch.Generator().manual_seed(seed)
     goals = torch.rand(num, 3, generator=g) * 2 - 1
     goals[:, 2] = 0.0
-    data = {"desired_goal": goals, "target_goal": torch.tensor(TARGET).expand(num, 3).clone(),
+    data = {"desired_goal": goals, "task_goal": torch.tensor(TARGET).expand(num, 3).clone(),
             "observation": torch.randn(num, 4, generator=g)}
     if energy is not None:
         data["energy"] = energy
@@ -144,7 +144,7 @@ def test_ebp_rejects_negative_energy():
 
 
 def graph_distance(graph, batch) -> float:
-    return graph.distance(batch["desired_goal"], batch["target_goal"]).clamp(max=10).mean().item()
+    return graph.distance(batch["desired_goal"], batch["task_goal"]).clamp(max=10).mean().item()
 
 
 def nn_distance(graph, batch) -> float:
@@ -173,7 +173,7 @@ def test_zero_tradeoff_spreads_goals_out(graph):
 def test_info_reports_the_chosen_candidate(graph):
     sampler = GraphCurriculumSampler(graph, num_candidates=4, tradeoff=3.0, unreachable_distance=2.5)
     batch = make_buffer(sampler, goal_transitions(500)).sample()
-    goals, targets = batch["desired_goal"], batch["target_goal"]
+    goals, targets = batch["desired_goal"], batch["task_goal"]
     assert (batch["tradeoff"] == 3.0).all()
     distance = graph.distance(goals, targets)
     finite = torch.isfinite(distance)
@@ -326,7 +326,7 @@ def test_cher_prefers_goals_near_targets_with_large_tradeoff():
     uniform = make_buffer(RandomSampler(), data)
     cher = make_buffer(CherSampler(pool_size=500, tradeoff=50.0), data)
     def to_target(batch) -> float:
-        return EuclideanMetric().distance(batch["desired_goal"], batch["target_goal"]).mean().item()
+        return EuclideanMetric().distance(batch["desired_goal"], batch["task_goal"]).mean().item()
 
     d_uniform = mean_over_batches(uniform, to_target, 5)
     d_cher = mean_over_batches(cher, to_target, 5)
@@ -582,7 +582,7 @@ def test_curriculum_cache_follows_overwrites_and_buffer_writes(graph):
         batch = buffer.sample()
         stored = buffer.storage[batch["index"]]
         assert torch.equal(batch["desired_goal"], stored["desired_goal"])
-        distance = graph.distance(stored["desired_goal"], stored["target_goal"])
+        distance = graph.distance(stored["desired_goal"], stored["task_goal"])
         expected = -torch.where(torch.isfinite(distance), distance, 2.5).sum()
         assert batch["proximity"][0].item() == pytest.approx(expected.item(), rel=1e-5)
         nearest = nearest_neighbour_distances(stored["desired_goal"][None], graph, neighbours=None)
@@ -617,7 +617,7 @@ def test_returned_batch_is_the_argmax_of_F_over_the_candidates(scale, metric_nam
     # independently from all pairs; λ changes between samples of one drawn-ahead pool.
     metric = graph if metric_name == "graph" else EuclideanMetric()
     data = goal_transitions(3000, seed=4)
-    on_graph = torch.isfinite(graph.distance(data["desired_goal"], data["target_goal"]))
+    on_graph = torch.isfinite(graph.distance(data["desired_goal"], data["task_goal"]))
     data = data[on_graph]
     data["row"] = torch.arange(len(data))
     n, k, b, ahead = len(data), 6, 48, 4
@@ -625,7 +625,7 @@ def test_returned_batch_is_the_argmax_of_F_over_the_candidates(scale, metric_nam
     sampler = GraphCurriculumSampler(metric, k, schedule, neighbours=3, draw_ahead=ahead, scale=scale)
     buffer = make_buffer(sampler, data, seed=11, batch=b)
     candidates = torch.randint(n, (ahead, k, b), generator=torch.Generator().manual_seed(11))
-    goals, targets = data["desired_goal"][candidates], data["target_goal"][candidates]
+    goals, targets = data["desired_goal"][candidates], data["task_goal"][candidates]
     for sample, distance in enumerate([math.inf, 0.3, 0.05, 0.6]):  # λ = 0, 3.6, 57, 0.0015
         lam = schedule.update(distance=distance)
         batch = buffer.sample()

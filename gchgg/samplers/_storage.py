@@ -140,7 +140,8 @@ def _missing(data: Any, key: NestedKey, sampler: object):
     keys = sorted(map(str, data.keys(include_nested=True, leaves_only=True))) if is_tensor_collection(data) else []
     raise KeyError(
         f"{type(sampler).__name__} reads {key!r} from the replay storage, but the stored transitions have keys "
-        f"{keys}; store it (HindsightRelabel writes 'desired_goal' and 'target_goal', EpisodeEnergy 'energy') "
+        f"{keys}; store it (HindsightRelabel writes 'desired_goal', 'episode_goal' and 'task_goal', "
+        "EpisodeEnergy 'energy') "
         f"or pass the right key to the sampler"
     )
 

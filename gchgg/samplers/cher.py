@@ -71,7 +71,8 @@ class CherSampler(Sampler):
 
     Keyword Args:
         goal_key: stored goal. Default ``"desired_goal"``.
-        target_key: stored goal proximity is measured to. Default ``"target_goal"``.
+        target_key: stored goal proximity is measured to. Default ``"task_goal"`` (the target task's
+            goal T*, as :class:`~gchgg.transforms.HindsightRelabel` stores it).
         neighbours: k of the similarity graph (≥ 1). Default 1.
         subset_size: random candidates per greedy step (≥ 1). Default 3.
 
@@ -81,7 +82,7 @@ class CherSampler(Sampler):
         >>> from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
         >>> g = torch.Generator().manual_seed(0)
         >>> data = TensorDict({"desired_goal": torch.rand(500, 3, generator=g),
-        ...                    "target_goal": torch.zeros(500, 3)}, [500])
+        ...                    "task_goal": torch.zeros(500, 3)}, [500])
         >>> buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(500), batch_size=32, generator=g,
         ...                                 sampler=CherSampler(pool_size=200, tradeoff=10.0))
         >>> _ = buffer.extend(data)
@@ -100,7 +101,7 @@ class CherSampler(Sampler):
         tradeoff: Tradeoff | float | None = None,
         *,
         goal_key: NestedKey = "desired_goal",
-        target_key: NestedKey = "target_goal",
+        target_key: NestedKey = "task_goal",
         neighbours: int = 1,
         subset_size: int = 3,
     ) -> None:

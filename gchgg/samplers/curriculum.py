@@ -198,8 +198,9 @@ class GraphCurriculumSampler(Sampler):
     Keyword Args:
         goal_key: stored goal proximity is measured from. Default ``"desired_goal"`` (the goal each
             transition trains on, eq. 15).
-        target_key: stored goal proximity is measured to. Default ``"target_goal"`` (eq. 15: the
-            episode's target-task goal; with HGG store T* under its own key and name it here).
+        target_key: stored goal proximity is measured to. Default ``"task_goal"`` (eq. 15: the
+            target task's goal T* of the transition's episode, as
+            :class:`~gchgg.transforms.HindsightRelabel` stores it).
         diversity_key: stored goals whose nearest-neighbour distances make F_div. Default:
             ``goal_key``.
         scale: ``"raw"`` (default) or ``"standardized"``, see "Scale".
@@ -223,7 +224,7 @@ class GraphCurriculumSampler(Sampler):
         >>> from gchgg.graph import EuclideanMetric
         >>> g = torch.Generator().manual_seed(0)
         >>> goals = torch.rand(1000, 3, generator=g)
-        >>> transitions = TensorDict({"desired_goal": goals, "target_goal": torch.zeros(1000, 3)}, [1000])
+        >>> transitions = TensorDict({"desired_goal": goals, "task_goal": torch.zeros(1000, 3)}, [1000])
         >>> sampler = GraphCurriculumSampler(EuclideanMetric(), num_candidates=8, tradeoff=10.0)
         >>> buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(10_000), sampler=sampler,
         ...                                 batch_size=64, generator=g)
@@ -245,7 +246,7 @@ class GraphCurriculumSampler(Sampler):
         tradeoff: Tradeoff | float = 0.0,
         *,
         goal_key: NestedKey = "desired_goal",
-        target_key: NestedKey = "target_goal",
+        target_key: NestedKey = "task_goal",
         diversity_key: NestedKey | None = None,
         scale: str = "raw",
         energy_key: NestedKey | None = None,

@@ -2,8 +2,11 @@
 
 :class:`HindsightRelabel` turns complete episodes ``[..., T]`` into the transitions a replay buffer
 stores: for every step the original transition plus ``k`` copies whose goal is an achieved goal of
-the same episode, with the reward recomputed by the task's pure reward function. The goal the
-episode was collected for stays under ``target_goal``; the goal to train on is ``desired_goal``.
+the same episode, with the reward recomputed by the task's pure reward function. Each goal has one
+name: ``desired_goal`` is the goal a transition trains on (relabelled in the copies),
+``episode_goal`` the goal the episode was collected for (under HGG an intermediate goal), and
+``task_goal`` the target task's goal T* the episode serves (eq. 15's g*: the episode's own goal
+unless the episode carries another under ``task_goal``, as HGG's episodes do).
 
 Stored layout (the training loop and the samplers rely on it)::
 
@@ -13,10 +16,11 @@ Stored layout (the training loop and the samplers rely on it)::
     e.g. N = 2, k = 4, T = 100: rows 0–99 are episode 0 as collected, rows 100–499 its four
     relabelled copies, rows 500–999 episode 1 in the same order.
 
-Keys of one stored transition (push_new: obs_dim 25, action 3; 271 bytes with ``energy``):
-``observation``, ``action``, ``desired_goal`` (goal to train on), ``target_goal`` (goal the episode
-was collected for), ``achieved_goal``, ``energy`` (if :class:`~gchgg.transforms.EpisodeEnergy` ran
-first), and under ``next``: ``observation``, ``achieved_goal``, ``reward``, ``done``, ``terminated``,
+Keys of one stored transition (push_new: obs_dim 25, action 3; 283 bytes with ``energy``, as
+``benchmarks/samplers.py`` prints): ``observation``, ``action``, ``desired_goal`` (goal to train
+on), ``episode_goal`` (goal the episode was collected for), ``task_goal`` (the target task's goal
+T*), ``achieved_goal``, ``energy`` (if :class:`~gchgg.transforms.EpisodeEnergy` ran first), and
+under ``next``: ``observation``, ``achieved_goal``, ``reward``, ``done``, ``terminated``,
 ``truncated``. Dropped by default (:data:`DEFAULT_DROP_KEYS`): ``("next", "desired_goal")`` (it
 equals ``desired_goal``; :class:`GoalToNext` puts it back at sample time for free), ``is_success``
 (valid for the collected goal only), the root ``done``/``terminated``/``truncated`` copies and
@@ -99,7 +103,12 @@ class HindsightRelabel(Transform):
             ``achieved_goal_key``. With observation noise, the true achieved goal
             (``"true_achieved_goal"``, see :class:`~gchgg.transforms.ObservationNoise`) keeps rewards true
             to physics while the hindsight goals are the observed positions.
-        target_key: key written with the goal the episode was collected for. Default ``"target_goal"``.
+        episode_goal_key: key written with the goal the episode was collected for (the episode's
+            ``goal_key`` before relabelling). Default ``"episode_goal"``.
+        task_goal_key: key of the target task's goal T*: read from the episode where it has one (HGG
+            collects an episode for an intermediate goal and names its target task's goal here), else
+            the episode's goal (HER: episodes are collected for their task's goal); written in every
+            transition. Default ``"task_goal"``.
         reward_key: reward entry to overwrite (same shape and dtype). Default ``("next", "reward")``.
         drop_keys: entries not stored (missing ones are ignored). Default :data:`DEFAULT_DROP_KEYS`.
         flatten: ``True`` (default) returns ``[N·(k+1)·T]`` transitions for a ``[N, T]`` input (any
@@ -134,7 +143,7 @@ class HindsightRelabel(Transform):
         [1.0, 1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5]
         >>> transitions["next", "reward"].squeeze(-1).tolist()  # 0 where the step reaches its goal
         [-1.0, -1.0, -1.0, -1.0, -1.0, -1.0, -1.0, 0.0, -1.0, -1.0, -1.0, 0.0]
-        >>> bool((transitions["target_goal"] == 1).all())
+        >>> bool((transitions["episode_goal"] == 1).all() and (transitions["task_goal"] == 1).all())
         True
     """
 
@@ -148,7 +157,8 @@ class HindsightRelabel(Transform):
         goal_key: NestedKey = "desired_goal",
         achieved_goal_key: NestedKey = "achieved_goal",
         reward_achieved_goal_key: NestedKey | None = None,
-        target_key: NestedKey = "target_goal",
+        episode_goal_key: NestedKey = "episode_goal",
+        task_goal_key: NestedKey = "task_goal",
         reward_key: NestedKey = ("next", "reward"),
         drop_keys: Sequence[NestedKey] = DEFAULT_DROP_KEYS,
         flatten: bool = True,
@@ -174,7 +184,8 @@ class HindsightRelabel(Transform):
         self.reward_achieved_goal_key = (
             achieved_goal_key if reward_achieved_goal_key is None else reward_achieved_goal_key
         )
-        self.target_key = target_key
+        self.episode_goal_key = episode_goal_key
+        self.task_goal_key = task_goal_key
         self.reward_key = reward_key
         self.drop_keys = tuple(drop_keys)
         self.flatten = bool(flatten)
@@ -236,7 +247,10 @@ class HindsightRelabel(Transform):
         drop = self.drop_keys if lengths is None else (*self.drop_keys, self.mask_key)
         out = tensordict.exclude(*drop).unsqueeze(len(batch)).expand(*batch, copies, steps)
         out.set(self.goal_key, goals)
-        out.set(self.target_key, goal.unsqueeze(-3).expand(*batch, copies, steps, goal.shape[-1]))
+        episode_goal = goal.unsqueeze(-3).expand(*batch, copies, steps, goal.shape[-1])
+        out.set(self.episode_goal_key, episode_goal)
+        if self.task_goal_key not in out.keys(include_nested=True):  # HER: the episode's goal is its task's
+            out.set(self.task_goal_key, episode_goal)
         out.set(self.reward_key, reward)
         if self._next(self.goal_key) in out.keys(include_nested=True):
             out.set(self._next(self.goal_key), goals)
@@ -279,7 +293,7 @@ class HindsightRelabel(Transform):
         )
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(k={self.k}, strategy={self.strategy.value!r}, target_key={self.target_key!r})"
+        return f"{type(self).__name__}(k={self.k}, strategy={self.strategy.value!r})"
 
 
 class GoalToNext(Transform):
