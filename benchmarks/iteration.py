@@ -49,7 +49,6 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
-from gchgg.evaluator import BackgroundEvaluator  # noqa: E402
 from gchgg.linear import MATMUL_BACKENDS, resolve_matmul, resolve_precision, use_onednn  # noqa: E402
 from gchgg.rollout import collect  # noqa: E402
 from gchgg.train import CONF_DIR, Trainer  # noqa: E402
@@ -165,9 +164,8 @@ def checkpoint_cost(trainer: Trainer, run_dir: Path) -> None:
 def trainer_rollout(trainer: Trainer):
     """One chunk of random-action episodes from the trainer's env."""
     start = trainer.env.reset()
-    rollout = collect(trainer.env, lambda obs, goal: trainer.agent.random_action(len(obs), trainer.explore_rng),
-                      trainer.steps, start)
-    return rollout
+    explore = trainer.parts.streams["explore"]
+    return collect(trainer.env, lambda obs, goal: trainer.agent.random_action(len(obs), explore), trainer.steps, start)
 
 
 def _config(algo: str, updates: int, threads: int, chunks: int, matmul: str):
@@ -248,21 +246,17 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
             trainer = Trainer(cfg, Path(run_dir))
             fill_pool(trainer)
             if cfg.eval.background:
-                trainer.evaluator = BackgroundEvaluator(trainer.build_eval_env, trainer.steps, threads, matmul)
+                trainer.evaluations.start_background(threads, matmul)
             try:
-                trainer.history.append(trainer.iteration_step())  # untimed: fills the buffer, starts the worker
-                trainer.collect_evaluations(wait=True)
+                trainer.step()  # untimed: fills the buffer, starts the worker
+                trainer.evaluations.collect(trainer.history, wait=True)
                 start = time.perf_counter()
-                for _ in range(iterations):  # as the training loop does with checkpoint.every=1
-                    trainer.history.append(trainer.iteration_step())
-                    trainer.collect_evaluations()
-                    trainer.save()
-                    trainer.write_metrics()
-                trainer.collect_evaluations(wait=True)
+                for _ in range(iterations):  # as training runs each iteration (checkpoint.every=1)
+                    trainer.step()
+                trainer.evaluations.collect(trainer.history, wait=True)
                 wall[mode] = (time.perf_counter() - start) / iterations
             finally:
-                if trainer.evaluator is not None:
-                    trainer.evaluator.close()
+                trainer.evaluations.close()
         print(f"gchgg {mode:22s} {wall[mode]:6.2f} s/iteration (wall clock, {iterations} iterations, "
               "each with its checkpoint)", flush=True)
     base = wall["without evaluation"]
@@ -283,12 +277,10 @@ def everything_on(iterations: int, updates: int, threads: int, matmul: str = "au
     with tempfile.TemporaryDirectory() as run_dir:
         trainer = Trainer(cfg, Path(run_dir))
         fill_pool(trainer)
-        trainer.history.append(trainer.iteration_step())
+        trainer.step()
         start = time.perf_counter()
         for _ in range(iterations):
-            trainer.history.append(trainer.iteration_step())
-            trainer.save()
-            trainer.write_metrics()
+            trainer.step()
         return (time.perf_counter() - start) / iterations
 
 

@@ -6,10 +6,12 @@ disk and renames it over the old checkpoint, so a reader sees either the previou
 new one, never a partial file. :func:`load` verifies the header and the checksum and raises
 :class:`CorruptCheckpointError` when anything does not match.
 
-:func:`parts_state` and :func:`load_parts_state` are what a run's checkpoint holds of its parts
-(:class:`gchgg.parts.Parts`): the agent, the buffer's sampler, writer and generator states and its
-storage's length (the rows are in the replay files, :mod:`gchgg.replay_log`), the trade-off, the goal
-generator, and every random stream and env state; the trainer adds the loop's own state.
+:func:`check_identity` refuses to resume another run's checkpoint; :func:`save_policy` writes the
+actor alone beside each checkpoint. :func:`parts_state` and :func:`load_parts_state` are what a
+run's checkpoint holds of its parts (:class:`gchgg.parts.Parts`): the agent, the buffer's sampler,
+writer and generator states and its storage's length (the rows are in the replay files,
+:mod:`gchgg.replay_log`), the trade-off, the goal generator, and every random stream and env state;
+the trainer adds the loop's own state.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import torch
+from omegaconf import OmegaConf
 
 from gchgg.evaluator import env_state
 
@@ -146,3 +149,22 @@ def load_parts_state(parts: Parts, state: dict[str, Any], replay_log: ReplayLog)
     parts.eval_env.set_random_state(state["eval_env_random"])
     for name, generator in parts.noise_generators.items():
         generator.set_state(state["noise_rng"][name])
+
+
+def check_identity(saved: dict | None, identity: dict, run_dir: Path) -> None:
+    """Refuse a checkpoint whose ``run`` entry (``saved``) is not this run's ``identity``, naming each
+    difference; a checkpoint from before ``precision`` was recorded counts as float32."""
+    if saved is None:
+        return
+    saved = {"precision": "float32", **saved}
+    if saved != identity:
+        differences = ", ".join(f"{key}: checkpoint {saved.get(key)!r}, this run {value!r}"
+                                for key, value in identity.items() if saved.get(key) != value)
+        raise ValueError(f"the checkpoint in {run_dir} belongs to another run ({differences}); "
+                         "resume it with its own settings, or start this one in another folder")
+
+
+def save_policy(path: Path, cfg, iteration: int, agent) -> None:
+    """The policy snapshot (task, threshold, config and actor: what evaluation and export load)."""
+    save({"iteration": iteration, "task": cfg.env.name, "threshold": float(cfg.env.threshold),
+          "config": OmegaConf.to_container(cfg, resolve=True), "policy": agent.policy_state()}, path)

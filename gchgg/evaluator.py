@@ -1,4 +1,8 @@
-"""Evaluation during training: its schedule and the early-stop rule, and snapshots evaluated in a second process.
+"""Evaluation during training: its schedule, the stop rule, and policies evaluated in line or in a second process.
+
+:class:`Evaluations` is what the trainer holds: it evaluates an iteration's policy in line or hands
+it to the background evaluator, puts each success rate into its iteration's metrics row, and says
+whether the evaluations so far stop the run.
 
 :class:`EvaluationSchedule` says which iterations end with an evaluation (``eval.every``, and the
 last) and when the evaluations so far stop the run (``train.stop_success`` held for
@@ -21,11 +25,14 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import torch
 
-__all__ = ["BackgroundEvaluator", "EvaluationSchedule", "env_state", "set_env_state"]
+from gchgg.rollout import evaluate
+
+__all__ = ["BackgroundEvaluator", "EvaluationSchedule", "Evaluations", "env_state", "set_env_state"]
 
 
 @dataclass(frozen=True)
@@ -143,7 +150,6 @@ def _serve(build_env, steps: int, threads: int, matmul: str, requests, results) 
     try:
         torch.set_num_threads(threads)
         from gchgg.agent import load_policy
-        from gchgg.rollout import evaluate
 
         env, noise = build_env()
         while (request := requests.get()) is not None:
@@ -156,3 +162,95 @@ def _serve(build_env, steps: int, threads: int, matmul: str, requests, results) 
             results.put((iteration, success, time.perf_counter() - start, env_state(env, noise)))
     except BaseException:  # reported to the trainer, which raises it
         results.put(("error", traceback.format_exc()))
+
+
+class Evaluations:
+    """A run's evaluations on target goals, in line or in a :class:`BackgroundEvaluator`, and the stop rule.
+
+    In line, :meth:`after` writes the success rate into the iteration's row at once. In the
+    background (:meth:`start_background`), it hands the policy over and :meth:`collect` writes the
+    rate into the row when it comes back. Until then the row is *pending*: ``metrics.csv`` and the
+    trackers stop before it, and a checkpoint records the pending policies (:meth:`state_dict`),
+    which a resumed run submits again.
+
+    Args:
+        schedule: which iterations evaluate, and the stop rule.
+        env: the evaluation env; noise: its observation-noise generator (``None`` without noise).
+        build_env: builds ``(env, noise)`` as the trainer built them (for the background process).
+        steps: episode length.
+    """
+
+    def __init__(self, schedule: EvaluationSchedule, env, noise: torch.Generator | None,
+                 build_env: Callable, steps: int) -> None:
+        self.schedule, self.env, self.noise, self.build_env, self.steps = schedule, env, noise, build_env, steps
+        self.background: BackgroundEvaluator | None = None
+        self.pending: dict[int, dict] = {}  # iteration -> policy snapshot, submitted, not yet back
+        self.env_before: dict | None = None  # the eval env's state before the pending evaluations
+
+    def start_background(self, threads: int, matmul: str) -> None:
+        """Evaluate in a second process from now on; policies pending in a resumed run go to it first."""
+        self.background = BackgroundEvaluator(self.build_env, self.steps, threads, matmul)
+        for iteration, policy in sorted(self.pending.items()):
+            self._submit(iteration, policy)
+
+    def after(self, iteration: int, agent, row: dict) -> None:
+        """Evaluate ``agent``'s policy after ``iteration`` if the schedule says so: in line into ``row``, or
+        submitted to the background process."""
+        if not self.schedule.evaluates(iteration):
+            return
+        if self.background is None:
+            row["success_rate"] = evaluate(self.env, partial(agent.act, explore=False), self.steps)
+        else:
+            self._submit(iteration, agent.policy_state())
+
+    def _submit(self, iteration: int, policy: dict) -> None:
+        """The first hand-over after a start carries the eval env's state; the worker goes on from there."""
+        start = None
+        if self.env_before is None:
+            start = self.env_before = env_state(self.env, self.noise)
+        self.pending[iteration] = policy
+        self.background.submit(iteration, policy, start)
+
+    def collect(self, history: list[dict], wait: bool = False) -> None:
+        """Put finished background evaluations into their rows of ``history`` (``wait``: all in flight)."""
+        if self.background is None:
+            return
+        for iteration, success, seconds, after in self.background.results(wait):
+            row = next(r for r in history if r["iteration"] == iteration)
+            row["success_rate"], row["seconds_eval_background"] = success, seconds
+            del self.pending[iteration]
+            self.env_before = after
+
+    def reached_stop(self, history: list[dict], settle: bool = False) -> bool:
+        """Whether the evaluations in ``history`` stop the run; with ``settle``, first wait for a pending
+        evaluation that could stop it, so a run stops where in-line evaluation would have stopped it."""
+        if settle and self.schedule.may_stop_on_pending(self.evaluated(history), bool(self.pending)):
+            self.collect(history, wait=True)
+        return self.schedule.reached_stop(self.evaluated(history))
+
+    @staticmethod
+    def evaluated(history: list[dict]) -> list[dict]:
+        """The rows whose evaluation is done, oldest first."""
+        return [row for row in history if "success_rate" in row]
+
+    def first_pending(self) -> int | None:
+        """The first iteration whose evaluation is in flight (its row and those after it are incomplete)."""
+        return min(self.pending) if self.pending else None
+
+    def state_dict(self) -> dict:
+        return {"eval_pending": list(self.pending.items())}
+
+    def load_state_dict(self, state: dict, background: bool) -> None:
+        """The pending evaluations of a checkpoint (submitted again by :meth:`start_background`); a run
+        saved with some in flight must resume with ``eval.background=true``."""
+        self.pending = dict(state.get("eval_pending", []))
+        if self.pending and not background:
+            raise ValueError(
+                f"the checkpoint has evaluations of iterations {sorted(self.pending)} in flight "
+                "(eval.background=true): resume it with eval.background=true"
+            )
+
+    def close(self) -> None:
+        if self.background is not None:
+            self.background.close()
+            self.background = None

@@ -1,9 +1,10 @@
-"""An iteration's diagnostics, accumulated over its chunks and updates, and ``metrics.csv``, the run's record."""
+"""An iteration's timings and diagnostics, gathered over its chunks and updates; ``metrics.csv``, the run's record."""
 
 from __future__ import annotations
 
 import csv
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,28 @@ import torch
 from gchgg.agent import DDPGAgent
 from gchgg.rollout import fraction
 
-__all__ = ["IterationStats", "write_csv"]
+__all__ = ["PHASES", "IterationStats", "PhaseTimer", "log_complete", "write_csv"]
+
+PHASES = ("goals", "rollout", "store", "update")  # an iteration's timed phases (seconds_<phase> columns)
+
+
+class PhaseTimer:
+    """Wall-clock seconds per phase of an iteration: :meth:`lap` charges the time since the last lap."""
+
+    def __init__(self, phases: tuple[str, ...] = PHASES) -> None:
+        self.seconds = dict.fromkeys(phases, 0.0)
+        self._clock = time.perf_counter()
+
+    def lap(self, phase: str) -> None:
+        now = time.perf_counter()
+        self.seconds[phase] += now - self._clock
+        self._clock = now
+
+    def since_lap(self) -> float:
+        return time.perf_counter() - self._clock
+
+    def columns(self) -> dict[str, float]:
+        return {f"seconds_{phase}": seconds for phase, seconds in self.seconds.items()}
 
 
 class IterationStats:
@@ -97,3 +119,14 @@ def write_csv(history: list[dict[str, float]], path: Path, before: int | None = 
         writer.writeheader()
         writer.writerows(rows)
     os.replace(tmp, path)
+
+
+def log_complete(history: list[dict], logged: int, before: int | None, trackers) -> int:
+    """Send the rows of ``history`` from position ``logged`` on to ``trackers`` (each whole, at step = its
+    iteration), up to the first of iteration ``before`` (an evaluation still in flight); returns how many
+    rows are logged now."""
+    while logged < len(history) and (before is None or history[logged]["iteration"] < before):
+        if trackers is not None:
+            trackers.log_row(history[logged], step=history[logged]["iteration"])
+        logged += 1
+    return logged

@@ -13,7 +13,7 @@ import pytest
 import torch
 from test_train import config, tiny
 
-from gchgg import train
+from gchgg import evaluator, train
 from gchgg.graph import EuclideanMetric, GoalGraph
 from gchgg.hgg import HGGGoalGenerator
 from gchgg.samplers import AdaptiveTradeoff, CherSampler, EnergySampler, ExponentialTradeoff, GraphCurriculumSampler
@@ -36,12 +36,12 @@ def trainer(tmp_path: Path, *overrides: str, task: str = "push_new", algo: str =
 def test_each_algo_builds_its_metric_sampler_and_goal_generator(algo, tmp_path):
     metric, sampler, generator = WIRING[algo]
     t = trainer(tmp_path, algo=algo)
-    assert type(t.metric) is metric
+    assert type(t.parts.metric) is metric
     assert type(t.sampler) is sampler
     assert t.buffer.sampler is t.sampler
     assert (t.goal_generator is not None) == generator
     if generator:
-        assert isinstance(t.goal_generator, HGGGoalGenerator) and t.goal_generator.metric is t.metric
+        assert isinstance(t.goal_generator, HGGGoalGenerator) and t.goal_generator.metric is t.parts.metric
     if algo in ("her", "hgg", "ghgg"):
         assert t.tradeoff is None  # no λ where nothing reads one
     if algo == "cher":
@@ -201,7 +201,7 @@ def test_training_stops_once_success_holds_for_the_patience(tmp_path, monkeypatc
     t = trainer(tmp_path, "train.iterations=10", "train.stop_success=0.5", "train.stop_patience=2",
                 task="reach", algo="her")
     rates = iter([0.6, 0.2, 0.7, 0.9, 0.1, 0.1])
-    monkeypatch.setattr(train, "evaluate", lambda *args: next(rates))
+    monkeypatch.setattr(evaluator, "evaluate", lambda *args: next(rates))
     rows = t.train()
     assert [row["success_rate"] for row in rows] == [0.6, 0.2, 0.7, 0.9]
 

@@ -11,7 +11,7 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException, MissingConfigException
 
 from envs import TASKS
-from gchgg import checkpoint, train
+from gchgg import checkpoint, evaluator, train
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 ALGOS = ("her", "hgg", "ghgg", "cher", "gchgg", "gchgg_code")
@@ -111,7 +111,7 @@ def test_run_killed_between_checkpoints_repeats_the_lost_iterations_identically(
     whole, split = tmp_path / "whole", tmp_path / "split"
     train.run(config(base), whole)
 
-    evaluate, calls = train.evaluate, []
+    evaluate, calls = evaluator.evaluate, []
 
     def killed_in_the_fourth_iteration(*args):
         calls.append(1)
@@ -119,11 +119,11 @@ def test_run_killed_between_checkpoints_repeats_the_lost_iterations_identically(
             raise KeyboardInterrupt
         return evaluate(*args)
 
-    monkeypatch.setattr(train, "evaluate", killed_in_the_fourth_iteration)
+    monkeypatch.setattr(evaluator, "evaluate", killed_in_the_fourth_iteration)
     with pytest.raises(KeyboardInterrupt):
         train.run(config(base), split)
     assert len(read_metrics(split)) == 3 and checkpoint.load(split / "checkpoint.pt")["iteration"] == 2
-    monkeypatch.setattr(train, "evaluate", evaluate)
+    monkeypatch.setattr(evaluator, "evaluate", evaluate)
     train.run(config([*base, "resume=true"]), split)
 
     def results(run_dir):
