@@ -2,6 +2,7 @@
 
     python -m gchgg.plot RUN_OR_SWEEP_OR_CSV... [--out FIG.png] [--table TABLE.md] [--y COLUMN...]
     python -m gchgg.plot docs/results/push_new --compare gchgg ghgg [--budget N] [--auc-range R]
+    python -m gchgg.plot docs/results/push_new/forks --pairs gchgg ghgg
 
 Each argument is a run folder (``metrics.csv`` and the ``config.yaml`` the trainer saves), a folder
 holding such runs at any depth (a sweep), a ``metrics.csv``-style file, or a folder of such files
@@ -49,6 +50,12 @@ pick_no_obstacle 200, pick_obstacle 400), else the task's longest run's length.
 ``--compare A B`` prints, per task holding both groups, the probability that a run of A beats a
 run of B on each score (fewer iterations to 0.9; a larger AUC), with its 95 % interval, instead of
 the table (``--table`` and ``--out`` still write theirs).
+
+``--pairs A B`` pairs the runs of A and B by seed (paired forks: two forks of one checkpoint with the
+same new seed, :mod:`gchgg.fork`) and prints, per pair, both runs' HGG stop iteration and first
+iteration at ≥ 0.9 (censored as above, marked ``>``), their differences A − B, and per score the mean
+paired difference with its 95 % bootstrap interval over pairs (:func:`gchgg.stats.paired_difference_interval`)
+and how many pairs A was ahead, level and behind in.
 """
 
 from __future__ import annotations
@@ -67,7 +74,7 @@ import numpy as np
 from gchgg import stats
 
 __all__ = ["Run", "Scores", "auc", "auc_range", "budget_of", "compare", "find_runs", "first_score", "group_runs",
-           "iqr", "plot", "scores", "table"]
+           "iqr", "paired", "plot", "scores", "seed_of", "table"]
 
 _IGNORED = ("seed", "resume", "threads", "matmul", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
 _SEED_SUFFIX = re.compile(r"-seed\d+$")
@@ -379,6 +386,62 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
     return lines
 
 
+def seed_of(run: Run) -> int | None:
+    """The run's seed: its config's ``seed``, else the ``-seed<N>`` of its CSV's name (``None`` without either)."""
+    if "seed" in run.settings:
+        return int(run.settings["seed"])
+    match = re.search(r"-seed(\d+)$", Path(run.path).stem)
+    return int(match.group(1)) if match else None
+
+
+def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, budget: int | None = None,
+           rng: np.random.Generator | None = None) -> list[str]:
+    """Per task holding both groups: the runs of ``first`` (A) and ``second`` (B) paired by seed, a line
+    per pair (HGG stop and first ≥ 0.9 of each, censored ones marked ``>``, and A − B), then per score
+    the mean paired difference A − B with its 95 % interval and how many pairs A was ahead (fewer
+    iterations), level and behind in. Runs without a partner are named and left out."""
+    labels = {label for _, label in groups}
+    for name in (first, second):
+        if name not in labels:
+            raise ValueError(f"--pairs {first} {second}: no group {name!r}; the groups are {', '.join(sorted(labels))}")
+    lines = []
+    for task in sorted({task for task, _ in groups}):
+        if (task, first) not in groups or (task, second) not in groups:
+            continue
+        pair_scores = scores({key: groups[key] for key in ((task, first), (task, second))}, budget)
+        by_seed = []
+        for label in (first, second):
+            runs, score = groups[task, label], pair_scores[task, label]
+            by_seed.append({seed_of(r): (r, score.first[i], score.censored[i]) for i, r in enumerate(runs)})
+        seeds = sorted(set(by_seed[0]) & set(by_seed[1]) - {None})
+        alone = sorted(str(s) for s in set(by_seed[0]) ^ set(by_seed[1]))
+        lines.append(f"{task}: {len(seeds)} pairs of {first} (A) and {second} (B) by seed"
+                     + (f"; without a partner: seed {', '.join(alone)}" if alone else ""))
+        if not seeds:
+            continue
+        columns = {"HGG stop": [], f"first >= {THRESHOLD}": []}
+        for seed in seeds:
+            (a, a_first, a_cens), (b, b_first, b_cens) = by_seed[0][seed], by_seed[1][seed]
+            stops = [first_at(r, 1.0, "stopped") for r in (a, b)]
+            columns["HGG stop"].append(stops)
+            columns[f"first >= {THRESHOLD}"].append([a_first, b_first])
+            first_text = [f"{'>' if c else ''}{v:g}" for v, c in ((a_first, a_cens), (b_first, b_cens))]
+            lines.append(f"  seed {seed}: HGG stop A {stops[0]:g}, B {stops[1]:g} (A - B {stops[0] - stops[1]:g}); "
+                         f"first >= {THRESHOLD} A {first_text[0]}, B {first_text[1]} (A - B {a_first - b_first:g})")
+        for name, values in columns.items():
+            values = np.asarray(values, dtype=float)
+            finite = np.isfinite(values).all(1)
+            if not finite.any():
+                lines.append(f"  {name}: no pair where both runs have one")
+                continue
+            a_values, b_values = values[finite, 0], values[finite, 1]
+            estimate = stats.paired_difference_interval(a_values, b_values, rng=rng)
+            ahead, behind = int((a_values < b_values).sum()), int((a_values > b_values).sum())
+            lines.append(f"  {name}, A - B over {estimate.runs} pairs: mean {estimate.format(1)}; A ahead in {ahead}, "
+                         f"level in {estimate.runs - ahead - behind}, behind in {behind}")
+    return lines
+
+
 def _fmt(quartiles: tuple[float, float, float], digits: int | None = None) -> str:
     def one(v: float) -> str:
         if v == math.inf:
@@ -499,6 +562,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--compare", nargs=2, metavar=("A", "B"),
                         help="print P(a run of group A beats one of group B) per task, on both scores, "
                              "instead of the table")
+    parser.add_argument("--pairs", nargs=2, metavar=("A", "B"),
+                        help="pair the runs of groups A and B by seed (paired forks) and print the paired "
+                             "differences A - B of HGG stop and first >= 0.9, instead of the table")
     args = parser.parse_args(argv)
     if args.budget is not None and args.budget < 1:
         parser.error(f"--budget {args.budget}: a budget is a number of iterations, allowed: 1 or more")
@@ -516,8 +582,14 @@ def main(argv: Sequence[str] | None = None) -> None:
             print("\n".join(compare(groups, *args.compare, budget=args.budget, auc_iterations=args.auc_range)))
         except ValueError as error:
             parser.error(str(error))
-    text = table(groups, args.at, args.y, args.budget, args.auc_range) if args.table or not args.compare else ""
-    if not args.compare:
+    if args.pairs:
+        try:
+            print("\n".join(paired(groups, *args.pairs, budget=args.budget)))
+        except ValueError as error:
+            parser.error(str(error))
+    quiet = args.compare or args.pairs
+    text = table(groups, args.at, args.y, args.budget, args.auc_range) if args.table or not quiet else ""
+    if not quiet:
         print(text, end="")
     if args.table:
         Path(args.table).write_text(text)

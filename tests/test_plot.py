@@ -290,3 +290,32 @@ def test_a_run_reaching_0_9_where_a_shorter_one_was_censored_does_not_beat_it(tm
     assert poi("late", "short") == "toy: P(late beats short) first >= 0.9: 0.50 [0.50, 0.50] (1 vs 1 runs)"
     assert poi("early", "short") == "toy: P(early beats short) first >= 0.9: 1.00 [1.00, 1.00] (1 vs 1 runs)"
     assert poi("short", "late") == "toy: P(short beats late) first >= 0.9: 0.50 [0.50, 0.50] (1 vs 1 runs)"
+
+
+def write_rows(path, success, stopped):
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["iteration", "success_rate", "stopped"])
+        writer.writerows([i, s, t] for i, (s, t) in enumerate(zip(success, stopped, strict=True)))
+
+
+def test_pairs_match_runs_by_seed_and_give_paired_differences(tmp_path, capsys):
+    """Forks of one checkpoint: A (gchgg) and B (ghgg) share a seed per pair; the differences are A − B."""
+    folder = tmp_path / "forks"
+    folder.mkdir()
+    stop = {  # seed -> (A's HGG stop, A's first >= 0.9, B's HGG stop, B's first >= 0.9)
+        100: (4, 6, 5, 8), 101: (3, 9, 3, 7), 102: (5, 7, 6, 7),
+    }
+    for seed, (a_stop, a_first, b_stop, b_first) in stop.items():
+        for algo, s, f in (("gchgg", a_stop, a_first), ("ghgg", b_stop, b_first)):
+            write_rows(folder / f"{algo}-seed{seed}.csv", [0.0] * f + [0.9] * (12 - f), [0] * s + [1] * (12 - s))
+    write_rows(folder / "ghgg-seed103.csv", [0.0] * 12, [0] * 12)  # no partner
+    plot.main([str(folder), "--pairs", "gchgg", "ghgg", "--budget", "12"])
+    out = capsys.readouterr().out
+    assert "forks: 3 pairs of gchgg (A) and ghgg (B) by seed; without a partner: seed 103" in out
+    assert "seed 101: HGG stop A 3, B 3 (A - B 0); first >= 0.9 A 9, B 7 (A - B 2)" in out
+    # first >= 0.9: -2, +2, 0 -> mean 0; HGG stop: -1, 0, -1 -> mean -0.67
+    assert "first >= 0.9, A - B over 3 pairs: mean 0.0 [" in out and "A ahead in 1, level in 1, behind in 1" in out
+    assert "HGG stop, A - B over 3 pairs: mean -0.7 [-1.0, 0.0]; A ahead in 2, level in 1, behind in 0" in out
+    with pytest.raises(SystemExit):
+        plot.main([str(folder), "--pairs", "gchgg", "cher"])
