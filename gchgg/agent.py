@@ -253,6 +253,49 @@ def make_ddpg_networks(
     )
 
 
+@dataclass(frozen=True)
+class DDPGConfig:
+    """The learner's hyperparameters, each declared once, here (defaults: the original code's, REFERENCE.md).
+
+    The ``agent`` section of a run's config (:class:`gchgg.config.AgentConfig`, with these defaults) sets
+    them by name (``agent.actor_lr=5e-4``); a :class:`DDPGAgent` logs them in ``hparams`` and refuses a
+    state saved with others.
+
+    >>> DDPGConfig(actor_lr=0)
+    Traceback (most recent call last):
+    ...
+    ValueError: actor_lr must be a number > 0, got 0
+    """
+
+    hidden: tuple[int, ...] = (256, 256, 256)  # hidden-layer widths of the actor and of the critic
+    actor_lr: float = 1e-3  # Adam learning rate of the actor
+    critic_lr: float = 1e-3  # Adam learning rate of the critic
+    gamma: float = 0.98  # discount factor, in (0, 1)
+    polyak: float = 0.95  # target networks move as θ' ← polyak·θ' + (1 − polyak)·θ
+    target_update_every: int = 20  # the target networks move after every n-th update
+    action_l2: float = 1.0  # weight of mean(π²) in the actor loss
+    clip_return: bool = True  # clip the bootstrapped Q' to [−1/(1−γ), 0] in the critic target
+    random_eps: float = 0.3  # probability of a uniform random action when exploring (eq. 22)
+    noise_std: float = 0.2  # std of the Gaussian action noise when exploring (eq. 22)
+    norm_std_min: float = 1e-2  # std floor of the observation / goal normalisers
+    norm_clip: float = 5.0  # normalised observations and goals are clipped to ±norm_clip
+
+    def __post_init__(self) -> None:
+        hidden = tuple(self.hidden)
+        if not hidden or not all(isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1
+                                 for h in hidden):
+            raise ValueError(f"hidden must be a non-empty sequence of positive layer widths, got {self.hidden!r}")
+        object.__setattr__(self, "hidden", hidden)
+        for name in ("actor_lr", "critic_lr", "norm_std_min", "norm_clip"):
+            check_number(name, getattr(self, name), low=0, low_open=True)
+        check_number("gamma", self.gamma, low=0, high=1, low_open=True, high_open=True)
+        check_number("polyak", self.polyak, low=0, high=1)
+        check_number("target_update_every", self.target_update_every, integer=True, low=1)
+        check_number("action_l2", self.action_l2, low=0)
+        check_number("random_eps", self.random_eps, low=0, high=1)
+        check_number("noise_std", self.noise_std, low=0)
+
+
 class HindsightDDPGLoss(nn.Module):
     """The HER / HGG DDPG losses and target networks, as a plain :class:`torch.nn.Module`.
 
@@ -312,9 +355,9 @@ class HindsightDDPGLoss(nn.Module):
         actor_network: TensorDictModule,
         value_network: TensorDictModule,
         *,
-        gamma: float = 0.98,
-        action_l2: float = 1.0,
-        clip_return: bool = True,
+        gamma: float = DDPGConfig.gamma,
+        action_l2: float = DDPGConfig.action_l2,
+        clip_return: bool = DDPGConfig.clip_return,
     ) -> None:
         super().__init__()
         check_number("gamma", gamma, low=0, high=1, low_open=True, high_open=True)
@@ -446,48 +489,6 @@ def _target_copy(network: nn.Module) -> nn.Module:
     """A copy of ``network`` with its own parameters (no gradient) and the *same* buffer tensors."""
     target = copy.deepcopy(network, memo={id(buffer): buffer for buffer in network.buffers()})
     return target.requires_grad_(False)
-
-
-@dataclass(frozen=True)
-class DDPGConfig:
-    """The learner's hyperparameters, each declared once, here (defaults: the original code's, REFERENCE.md).
-
-    ``conf/config.yaml``'s ``agent`` section sets them by name (``agent.actor_lr=5e-4``); a
-    :class:`DDPGAgent` logs them in ``hparams`` and refuses a state saved with others.
-
-    >>> DDPGConfig(actor_lr=0)
-    Traceback (most recent call last):
-    ...
-    ValueError: actor_lr must be a number > 0, got 0
-    """
-
-    hidden: tuple[int, ...] = (256, 256, 256)  # hidden-layer widths of the actor and of the critic
-    actor_lr: float = 1e-3  # Adam learning rate of the actor
-    critic_lr: float = 1e-3  # Adam learning rate of the critic
-    gamma: float = 0.98  # discount factor, in (0, 1)
-    polyak: float = 0.95  # target networks move as θ' ← polyak·θ' + (1 − polyak)·θ
-    target_update_every: int = 20  # the target networks move after every n-th update
-    action_l2: float = 1.0  # weight of mean(π²) in the actor loss
-    clip_return: bool = True  # clip the bootstrapped Q' to [−1/(1−γ), 0] in the critic target
-    random_eps: float = 0.3  # probability of a uniform random action when exploring (eq. 22)
-    noise_std: float = 0.2  # std of the Gaussian action noise when exploring (eq. 22)
-    norm_std_min: float = 1e-2  # std floor of the observation / goal normalisers
-    norm_clip: float = 5.0  # normalised observations and goals are clipped to ±norm_clip
-
-    def __post_init__(self) -> None:
-        hidden = tuple(self.hidden)
-        if not hidden or not all(isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1
-                                 for h in hidden):
-            raise ValueError(f"hidden must be a non-empty sequence of positive layer widths, got {self.hidden!r}")
-        object.__setattr__(self, "hidden", hidden)
-        for name in ("actor_lr", "critic_lr", "norm_std_min", "norm_clip"):
-            check_number(name, getattr(self, name), low=0, low_open=True)
-        check_number("gamma", self.gamma, low=0, high=1, low_open=True, high_open=True)
-        check_number("polyak", self.polyak, low=0, high=1)
-        check_number("target_update_every", self.target_update_every, integer=True, low=1)
-        check_number("action_l2", self.action_l2, low=0)
-        check_number("random_eps", self.random_eps, low=0, high=1)
-        check_number("noise_std", self.noise_std, low=0)
 
 
 class DDPGAgent:

@@ -1,12 +1,15 @@
 """Builders of the training pipeline's parts from explicit arguments (no Hydra config is passed in).
 
 Each ``make_*`` function turns a few plain settings into one part — the goal metric, the trade-off
-schedule, the replay buffer with its sampler, the HER transform, the goal generator — and checks
-them first, so that a bad setting fails before training with a message naming it.
+schedule, the replay buffer with its sampler, the HER transform, the goal generator. The settings'
+defaults and checks are declared where the settings are: in :mod:`gchgg.config` for the pipeline,
+and in the parts themselves for their arguments; a builder takes every setting explicitly and checks
+only the choices it makes between parts.
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -26,7 +29,7 @@ from gchgg.samplers import (
 )
 from gchgg.samplers.curriculum import SCALES
 from gchgg.transforms import DEFAULT_DROP_KEYS, EpisodeEnergy, GoalToNext, HindsightRelabel, ObservationNoise
-from gchgg.validation import check_choice, check_number
+from gchgg.validation import check_choice
 
 METRICS = ("euclidean", "graph")
 SAMPLERS = ("uniform", "ebp", "curriculum", "cher")
@@ -39,20 +42,15 @@ PROXIMITIES = {  # curriculum.proximity -> (stored goal measured from, stored go
 DIVERSITY_OF = {"goal": "desired_goal", "achieved": "achieved_goal"}  # curriculum.diversity_of -> stored key
 
 
-def check_positive(setting: str, value, *, integer: bool = False, allow_zero: bool = False):
-    """``value`` if it is a finite number > 0 (>= 0 with ``allow_zero``), else a ``ValueError`` naming the setting."""
-    return check_number(setting, value, integer=integer, low=0, low_open=not allow_zero)
-
-
 def make_metric(
     kind: str,
     field=None,
     obstacles=(),
     *,
-    n: Sequence[int] = (31, 31, 11),
-    margin: float = 0.02,
-    snap: str = "nearest",
-    cache_dir: str | Path | None = None,
+    n: Sequence[int],
+    margin: float,
+    snap: str,
+    cache_dir: str | Path | None,
 ):
     """The goal metric: ``EuclideanMetric()`` or a ``GoalGraph`` over ``field`` with ``obstacles``.
 
@@ -70,72 +68,56 @@ def make_metric(
                      cache_dir=USER_CACHE_DIR if cache_dir is None else cache_dir)
 
 
-def make_tradeoff(
-    kind: str,
-    *,
-    eta: float = 1000.0,
-    sigma: float = 0.3,
-    lambda_0: float = 1.0,
-    tau: float = 0.005,
-    value: float = 1.0,
-    update_every: str = "iteration",
-):
-    """The λ schedule: adaptive (eq. 20; D read per ``update_every``), exponential (eq. 4) or fixed."""
+def make_tradeoff(kind: str, **settings):
+    """The λ schedule ``kind`` with its settings: adaptive (eq. 20: ``eta``, ``sigma``, ``update_every``),
+    exponential (eq. 4: ``lambda_0``, ``tau``) or fixed (``value``)."""
     check_choice("tradeoff", kind, TRADEOFFS)
-    check_choice("tradeoff.update_every", update_every, AdaptiveTradeoff.UPDATE_EVERY)
-    if kind != "adaptive" and update_every != "iteration":
-        raise ValueError(f"tradeoff.update_every={update_every!r} needs tradeoff=adaptive, got tradeoff={kind!r}")
-    if kind == "adaptive":
-        return AdaptiveTradeoff(eta=eta, sigma=sigma, update_every=update_every)
-    if kind == "exponential":
-        return ExponentialTradeoff(lambda_0=lambda_0, tau=tau)
-    return FixedTradeoff(value)
+    schedule = {"adaptive": AdaptiveTradeoff, "exponential": ExponentialTradeoff, "fixed": FixedTradeoff}[kind]
+    if "update_every" in settings and kind != "adaptive":
+        raise ValueError(f"tradeoff.update_every={settings['update_every']!r} needs tradeoff=adaptive, "
+                         f"got tradeoff={kind!r}")
+    try:
+        return schedule(**settings)
+    except TypeError:
+        raise ValueError(f"tradeoff={kind} takes {', '.join(inspect.signature(schedule).parameters)}, "
+                         f"got {', '.join(settings)}") from None
 
 
-def make_sampler(
-    kind: str,
-    metric,
-    tradeoff,
-    *,
-    num_candidates: int = 8,
-    proximity: str = "goal_to_target",
-    diversity_of: str = "goal",
-    diversity_metric=None,
-    scale: str = "raw",
-    cher_pool_size: int = 5000,
-):
-    """The replay sampler: uniform, EBP, graph curriculum (Alg. 1, candidates drawn with EBP) or CHER.
+def make_sampler(kind: str, metric, tradeoff, **settings):
+    """The replay sampler ``kind`` with its own settings: uniform, EBP, graph curriculum (Alg. 1, candidates
+    drawn with EBP) or CHER (``pool_size``).
 
-    For the curriculum: ``proximity`` (a key of :data:`PROXIMITIES`) says which two stored goals F_prox
-    measures, ``diversity_of`` (``"goal"`` or ``"achieved"``) whose nearest neighbours F_div scores, with
-    ``diversity_metric`` (default: ``metric``), and ``scale`` (``"raw"`` or ``"standardized"``) how the
-    two terms are weighed (see :class:`~gchgg.samplers.GraphCurriculumSampler`).
+    For the curriculum: ``num_candidates`` (K), ``proximity`` (a key of :data:`PROXIMITIES`) says which
+    two stored goals F_prox measures, ``diversity_of`` (``"goal"`` or ``"achieved"``) whose nearest
+    neighbours F_div scores, with ``diversity_metric`` (``None``: ``metric``), and ``scale`` (``"raw"``
+    or ``"standardized"``) how the two terms are weighed (see :class:`~gchgg.samplers.GraphCurriculumSampler`).
     """
     check_choice("sampler", kind, SAMPLERS)
+    if kind in ("uniform", "ebp") and settings:
+        raise ValueError(f"algo.sampler={kind} takes no settings, got {', '.join(settings)}")
     if kind == "uniform":
         return None  # TorchRL's RandomSampler
     if kind == "ebp":
         return EnergySampler("energy")
     if kind == "curriculum":
-        check_positive("curriculum.num_candidates", num_candidates, integer=True)
+        proximity, diversity_of = settings["proximity"], settings["diversity_of"]
         check_choice("curriculum.proximity", proximity, tuple(PROXIMITIES))
         check_choice("curriculum.diversity_of", diversity_of, tuple(DIVERSITY_OF))
-        check_choice("curriculum.scale", scale, SCALES)
+        check_choice("curriculum.scale", settings["scale"], SCALES)
         goal_key, target_key = PROXIMITIES[proximity]
         return GraphCurriculumSampler(
             metric,
-            num_candidates,
+            settings["num_candidates"],
             tradeoff,
             goal_key=goal_key,
             target_key=target_key,
             diversity_key=DIVERSITY_OF[diversity_of],
-            diversity_metric=diversity_metric,
-            scale=scale,
+            diversity_metric=settings["diversity_metric"],
+            scale=settings["scale"],
             energy_key="energy",
             on_write="redraw",  # every batch from the buffer as it is when sampled (the recorded runs)
         )
-    check_positive("cher_pool_size", cher_pool_size, integer=True)
-    return CherSampler(metric, pool_size=cher_pool_size, tradeoff=tradeoff)
+    return CherSampler(metric, pool_size=settings["pool_size"], tradeoff=tradeoff)
 
 
 def make_replay_buffer(
@@ -151,8 +133,6 @@ def make_replay_buffer(
     Every episode occupies ``transitions_per_episode`` = (k+1)·T consecutive rows, so the FIFO
     drops whole episodes. Sampled batches get ``("next", "desired_goal")`` back (:class:`GoalToNext`).
     """
-    check_positive("buffer.episodes", capacity_episodes, integer=True)
-    check_positive("train.batch_size", batch_size, integer=True)
     kwargs = {} if sampler is None else {"sampler": sampler}
     return TensorDictReplayBuffer(
         storage=LazyTensorStorage(capacity_episodes * transitions_per_episode),
@@ -171,7 +151,6 @@ def make_relabel(
     With ``true_achieved_goal_key`` (observation noise on), the energy and the rewards are computed
     from the true achieved goal, the hindsight goals are the observed ones, and the true copy is not stored.
     """
-    check_positive("her.k", k, integer=True, allow_zero=True)
     if true_achieved_goal_key is None:
         return Compose(EpisodeEnergy(), HindsightRelabel(reward_fn, k, strategy, generator=generator))
     drop = (*DEFAULT_DROP_KEYS, true_achieved_goal_key, ("next", true_achieved_goal_key))
@@ -191,7 +170,6 @@ def make_observation_noise(layout, has_object: bool, std: float, generator: torc
     position and the achieved goal. ``layout`` is the task's named observation layout
     (:func:`envs.observation_layout`).
     """
-    check_positive("noise.object_std", std)
     slices = [layout["object_position"], layout["object_relative"]] if has_object else [layout["grip_position"]]
     return ObservationNoise(std, slices, generator=generator)
 
@@ -204,16 +182,15 @@ def make_goal_generator(
     gamma: float,
     stop_threshold: float | None,
     success_threshold: float,
-    pool_size: int = 1000,
-    c: float = 3.0,
-    L: float = 5.0,
+    pool_size: int,
+    c: float,
+    L: float,
 ) -> HGGGoalGenerator | None:
     """``None`` (episodes go to the target goals) or an HGG goal generator with its trajectory pool (its
     results say when its stop condition switches the run to target goals: ``stopped_now``)."""
     check_choice("goal_generator", kind, GOAL_GENERATORS)
     if kind == "none":
         return None
-    check_positive("hgg.pool_size", pool_size, integer=True)
     return HGGGoalGenerator(
         metric,
         max_dis=max_dis,

@@ -54,6 +54,7 @@ import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
 
+from gchgg.agent import DDPGConfig
 from gchgg.graph import Metric
 from gchgg.validation import check_choice, check_number
 
@@ -284,7 +285,8 @@ class HGGGoalGenerator:
         pool: the trajectory pool; by default ``TrajectoryPool(1000, 0.01)``.
         c: weight of the initial-state distance in eq. 6 (paper default 3.0).
         L: Lipschitz constant of eq. 5 (paper default 5.0).
-        gamma: discount factor of the value function (0.98), for its clip range and scaling.
+        gamma: discount factor of the value function (default: the agent's, :class:`~gchgg.agent.DDPGConfig`),
+            for its clip range and scaling.
         stop_threshold: switch to plain HER once the fraction of intermediate goals within
             ``success_threshold`` of some target exceeds this (``None``: never; the original's
             README uses 0.3 for push, 0.5 for pick without and 0.9 with obstacle).
@@ -318,7 +320,7 @@ class HGGGoalGenerator:
         pool: TrajectoryPool | None = None,
         c: float = 3.0,
         L: float = 5.0,
-        gamma: float = 0.98,
+        gamma: float = DDPGConfig.gamma,
         stop_threshold: float | None = None,
         success_threshold: float = 0.05,
         infinite_distance: float = INFINITE_DISTANCE,

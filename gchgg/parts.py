@@ -1,9 +1,9 @@
 """The parts of one training run, built from its config: envs, metric, sampler, buffer, relabelling, agent, goals.
 
-:func:`make_parts` reads the composed config (and only it) into the explicit arguments of the
-builders in :mod:`gchgg.builders`; the :class:`~gchgg.train.Trainer` only runs the loop over what it
-returns, so a test or a notebook can build a trainer from parts it made itself. Every random stream
-of a run comes from one named seed table (:func:`seed_table`).
+:func:`make_parts` checks the composed config (:func:`gchgg.config.check`) and reads it (and only it)
+into the explicit arguments of the builders in :mod:`gchgg.builders`; the :class:`~gchgg.train.Trainer`
+only runs the loop over what it returns, so a test or a notebook can build a trainer from parts it
+made itself. Every random stream of a run comes from one named seed table (:func:`seed_table`).
 """
 
 from __future__ import annotations
@@ -14,14 +14,13 @@ from functools import partial
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from torchrl.envs import TransformedEnv
 
 import envs
-from gchgg import loggers
-from gchgg.agent import DDPGAgent, DDPGConfig
+from gchgg import config
+from gchgg.agent import DDPGAgent
 from gchgg.builders import (
-    check_positive,
     make_goal_generator,
     make_metric,
     make_observation_noise,
@@ -31,14 +30,10 @@ from gchgg.builders import (
     make_tradeoff,
 )
 from gchgg.hgg import estimate_max_distance
-from gchgg.linear import MATMUL_BACKENDS, PRECISIONS
-from gchgg.validation import check_choice, check_number
 
-__all__ = ["SEEDS", "Parts", "agent_config", "check_config", "make_env", "make_parts", "seed_table"]
+__all__ = ["SEEDS", "Parts", "make_env", "make_parts", "seed_table"]
 
 MAX_DIS_RESETS = 1000  # resets over which HGG's max_dis (largest initial-to-target distance) is taken
-NORMALIZER_SOURCES = ("sampled", "collected")
-TRADEOFF_SAMPLERS = ("curriculum", "cher")  # samplers that read a trade-off λ
 SEEDS = ("explore", "her", "buffer", "eval_env", "agent", "env_noise", "eval_noise")
 """The run's random streams, in the order ``np.random.SeedSequence(seed)`` hands out their seeds (the
 order is the recorded runs' and must not change; a new stream goes at the end). The training env's
@@ -87,9 +82,9 @@ class Parts:
 
 
 def make_parts(cfg: DictConfig) -> Parts:
-    """Check the config (:func:`check_config`) and build a run's parts from it. Sets torch's thread count
-    (``threads``) and its global seed; the order of the builds is that of the recorded runs."""
-    check_config(cfg)
+    """Check the config (:func:`gchgg.config.check`) and build a run's parts from it. Sets torch's thread
+    count (``threads``) and its global seed; the order of the builds is that of the recorded runs."""
+    run = config.check(cfg)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
@@ -97,7 +92,7 @@ def make_parts(cfg: DictConfig) -> Parts:
     name, algo, graph = cfg.env.name, cfg.algo, cfg.graph
     geometry = envs.geometry(name)
     steps, chunk_size = geometry.episode_length, cfg.train.episodes // cfg.train.chunks
-    options = {"threshold": cfg.env.threshold, "start": cfg.env.get("start", "original")}
+    options = {"threshold": cfg.env.threshold, "start": cfg.env.start}
     # Observation noise (a camera's error): the policy sees noisy positions; rewards, energy and the
     # goal pool read the true achieved goal the noise transform keeps.
     env, noise = make_env(name, chunk_size, cfg.seed, options, cfg.noise.object_std, seeds["env_noise"])
@@ -111,18 +106,19 @@ def make_parts(cfg: DictConfig) -> Parts:
                            snap=graph.snap, cache_dir=graph.cache_dir)
 
     metric = metric_of(algo.metric)
-    tradeoff = None  # only samplers that weigh diversity against proximity have a λ
-    if algo.sampler in TRADEOFF_SAMPLERS:
+    tradeoff = None  # only samplers that weigh diversity against proximity have a λ (config.check)
+    if algo.sampler in ("curriculum", "cher"):
         tradeoff = make_tradeoff(cfg.tradeoff.name, **{k: v for k, v in cfg.tradeoff.items() if k != "name"})
-    curriculum = cfg.curriculum
-    diversity_metric = None
-    if algo.sampler == "curriculum" and curriculum.diversity_metric != algo.metric:
-        diversity_metric = metric_of(curriculum.diversity_metric)
-    sampler = make_sampler(
-        algo.sampler, metric, tradeoff, num_candidates=curriculum.num_candidates, proximity=curriculum.proximity,
-        diversity_of=curriculum.diversity_of, diversity_metric=diversity_metric, scale=curriculum.scale,
-        cher_pool_size=cfg.cher.pool_size,
-    )  # fmt: skip
+    options = {}  # what the sampler reads: its own section
+    if algo.sampler == "curriculum":
+        curriculum = cfg.curriculum
+        other = curriculum.diversity_metric != algo.metric
+        diversity_metric = metric_of(curriculum.diversity_metric) if other else None
+        options = dict(num_candidates=curriculum.num_candidates, proximity=curriculum.proximity,
+                       diversity_of=curriculum.diversity_of, diversity_metric=diversity_metric, scale=curriculum.scale)
+    elif algo.sampler == "cher":
+        options = dict(pool_size=cfg.cher.pool_size)
+    sampler = make_sampler(algo.sampler, metric, tradeoff, **options)
     copies = cfg.her.k + 1
     buffer = make_replay_buffer(cfg.buffer.episodes, copies * steps, sampler, batch_size=cfg.train.batch_size,
                                 generator=torch.Generator().manual_seed(seeds["buffer"]))
@@ -131,7 +127,7 @@ def make_parts(cfg: DictConfig) -> Parts:
         generator=torch.Generator().manual_seed(seeds["her"]),
         true_achieved_goal_key=achieved_key if cfg.noise.object_std else None,
     )  # fmt: skip
-    agent = DDPGAgent(env.obs_dim, 3, env.action_dim, agent_config(cfg),
+    agent = DDPGAgent(env.obs_dim, 3, env.action_dim, run.agent.ddpg(),
                       generator=torch.Generator().manual_seed(seeds["agent"]), matmul=cfg.matmul,
                       precision=cfg.precision)
     goal_generator = None
@@ -172,46 +168,3 @@ def make_env(name: str, num_envs: int, seed: int, options: dict, noise_std: floa
     generator = torch.Generator().manual_seed(noise_seed)
     noise = make_observation_noise(envs.observation_layout(name), env.has_object, noise_std, generator)
     return TransformedEnv(env, noise), generator
-
-
-def check_config(cfg: DictConfig) -> None:
-    """Fail before training, naming the setting, on sizes, rates and fractions out of range."""
-    for setting in (
-        "train.iterations", "train.episodes", "train.chunks", "train.batch_size", "eval.episodes", "buffer.episodes",
-        "train.stop_patience",
-    ):  # fmt: skip
-        check_positive(setting, OmegaConf.select(cfg, setting), integer=True)
-    check_positive("checkpoint.every", cfg.checkpoint.every, integer=True)
-    check_positive("eval.every", cfg.eval.get("every", 1), integer=True)
-    for setting in ("train.updates", "train.warmup_steps", "her.k", "threads"):
-        check_positive(setting, OmegaConf.select(cfg, setting), integer=True, allow_zero=True)
-    check_positive("env.threshold", cfg.env.threshold)
-    check_positive("noise.object_std", cfg.noise.object_std, allow_zero=True)
-    check_positive("eval.noise_std", cfg.eval.noise_std, allow_zero=True)
-    agent_config(cfg)
-    if cfg.train.episodes % cfg.train.chunks:
-        raise ValueError(
-            f"train.chunks must divide train.episodes (each chunk collects the same number of episodes), "
-            f"got train.chunks={cfg.train.chunks} for train.episodes={cfg.train.episodes}"
-        )
-    check_choice("agent.normalizer_source", cfg.agent.normalizer_source, NORMALIZER_SOURCES)
-    check_choice("matmul", cfg.matmul, MATMUL_BACKENDS)
-    check_choice("precision", cfg.precision, PRECISIONS)
-    loggers.check_backends(cfg.logging.backend)  # a known name, its package installed
-    if cfg.train.stop_success is not None:
-        check_number("train.stop_success (a success rate, or null)", cfg.train.stop_success, low=0, high=1)
-    if cfg.train.episodes < 2 and cfg.algo.goal_generator == "hgg":
-        raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {cfg.train.episodes}")
-
-
-def agent_config(cfg: DictConfig) -> DDPGConfig:
-    """The learner's hyperparameters from the ``agent`` section (all but ``normalizer_source``, which the
-    loop reads); a bad one is a ``ValueError`` naming ``agent.<setting>``."""
-    settings = {k: v for k, v in OmegaConf.to_container(cfg.agent).items() if k != "normalizer_source"}
-    try:
-        return DDPGConfig(**settings)
-    except ValueError as error:
-        raise ValueError(f"agent.{error}") from None
-    except TypeError:
-        unknown = sorted(set(settings) - set(DDPGConfig.__dataclass_fields__))
-        raise ValueError(f"unknown agent settings {unknown}; the settings are DDPGConfig's fields") from None

@@ -46,7 +46,7 @@ def open_loggers(cfg: DictConfig, run_dir: Path) -> loggers.RunLoggers:
     settings = cfg.logging
     return loggers.make_loggers(
         settings.backend, run_dir, name, group, hparams,
-        project=settings.get("project", "gchgg"), mlflow_uri=settings.get("mlflow_uri"), store_dir=store,
+        project=settings.project, mlflow_uri=settings.mlflow_uri, store_dir=store,
     )  # fmt: skip
 
 

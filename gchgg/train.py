@@ -43,9 +43,9 @@ from tensordict import TensorDict  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg import checkpoint, fork, metrics  # noqa: E402
+from gchgg import checkpoint, config, fork, metrics  # noqa: E402
 from gchgg.evaluator import Evaluations, EvaluationSchedule  # noqa: E402
-from gchgg.parts import Parts, check_config, make_parts  # noqa: E402
+from gchgg.parts import Parts, make_parts  # noqa: E402
 from gchgg.replay_log import ReplayLog  # noqa: E402
 from gchgg.rollout import collect  # noqa: E402
 from gchgg.run_info import open_loggers, requeued, startup_record  # noqa: E402
@@ -74,7 +74,7 @@ class Trainer:
         self.tradeoff, self.goal_generator, self.steps = parts.tradeoff, parts.goal_generator, parts.steps
         self.geometry = envs.geometry(cfg.env.name) if parts.env.has_object else None  # object diagnostics
         self.replay_log = ReplayLog(run_dir / REPLAY, parts.buffer_rows)
-        schedule = EvaluationSchedule(cfg.train.iterations, cfg.eval.get("every", 1), cfg.train.stop_success,
+        schedule = EvaluationSchedule(cfg.train.iterations, cfg.eval.every, cfg.train.stop_success,
                                       cfg.train.stop_patience)
         self.evaluations = Evaluations(schedule, parts.eval_env, parts.noise_generators.get("eval_env"),
                                        parts.build_eval_env, parts.steps)
@@ -177,7 +177,7 @@ class Trainer:
         trackers = open_loggers(cfg, self.run_dir)  # logging.backend; hyperparameters logged once
         bar = tqdm(total=cfg.train.iterations, initial=self.iteration, desc=f"{cfg.env.name}/{cfg.algo.name}",
                    unit="it", disable=not cfg.logging.progress)
-        if cfg.eval.get("background", False):
+        if cfg.eval.background:
             self.evaluations.start_background(int(cfg.threads or torch.get_num_threads()), cfg.matmul)
         self.saved_at = self.iteration
         try:
@@ -220,7 +220,7 @@ class Trainer:
         self.iteration, self.env_steps, self.history = state["iteration"], state["env_steps"], state["history"]
         checkpoint.load_parts_state(self.parts, state, self.replay_log)
         # evaluations in flight when the checkpoint was written: submitted again when training goes on
-        self.evaluations.load_state_dict(state, self.cfg.eval.get("background", False))
+        self.evaluations.load_state_dict(state, self.cfg.eval.background)
         self.logged = len(Evaluations.evaluated(self.history)) if self.evaluations.pending else len(self.history)
 
     def save(self) -> None:
@@ -254,10 +254,10 @@ def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
             f"or hydra.run.dir=<folder> (or another seed) for a new one"
         )
     source = None
-    if cfg.get("init_from") is not None and not path.exists():
-        check_config(cfg)
+    if cfg.init_from is not None and not path.exists():
+        config.check(cfg)
         source = fork.prepare(cfg, run_dir, CHECKPOINT)  # refuses incompatible settings before anything is built
-    elif cfg.get("init_from") is not None:
+    elif cfg.init_from is not None:
         fork.check_resume(cfg, run_dir)  # the folder holds a fork of this source, not another run
     for folder in (run_dir, run_dir / REPLAY):  # what a save killed before its rename left behind
         checkpoint.remove_temporaries(folder)

@@ -4,8 +4,8 @@ Every error names the setting, the bad value and what is allowed, e.g.
 ``ValueError: train.episodes must be an integer > 0, got 0``; NaN and ±inf are refused unless
 ``finite=False``; ``bool`` is never taken for a number.
 
->>> check_number("agent.gamma", 0.98, low=0, high=1)
-0.98
+>>> check_number("agent.gamma", 0.9, low=0, high=1)
+0.9
 >>> check_number("train.episodes", 0, integer=True, low=0, low_open=True)
 Traceback (most recent call last):
 ...

@@ -91,12 +91,18 @@ def test_a_ghgg_checkpoint_forked_as_gchgg_logs_the_changes_and_starts_at_the_so
     source, rows = sources["ghgg"], metrics(curriculum_fork)
     record = OmegaConf.to_container(OmegaConf.load(curriculum_fork / "fork.yaml"))
     assert record["source_iteration"] == SOURCE_ITERATIONS
-    assert record["changed"] == {
+    changed = dict(record["changed"])
+    assert {key: changed.pop(key) for key in ("seed", "train.iterations", "algo.name", "algo.sampler")} == {
         "seed": {"source": 0, "fork": 7},
         "train.iterations": {"source": SOURCE_ITERATIONS, "fork": 5},
         "algo.name": {"source": "ghgg", "fork": "gchgg"},
         "algo.sampler": {"source": "ebp", "fork": "curriculum"},
     }
+    # G-HGG reads no curriculum and no λ: its config holds neither; the fork's sections are new
+    assert changed.pop("curriculum") == changed.pop("tradeoff") == {"source": None, "fork": "<absent>"}
+    assert changed.pop("curriculum.num_candidates") == {"source": "<absent>", "fork": 8}
+    assert all(key.startswith(("curriculum.", "tradeoff.")) and value["source"] == "<absent>"
+               for key, value in changed.items())
     assert record["random_streams"] == "new, from seed 7" and record["sampler"] == "new"
     assert [int(row["iteration"]) for row in rows] == [0, 1, 2, 3, 4]
     filled = [{k: v for k, v in row.items() if v} for row in rows]  # columns the source lacks are empty there

@@ -14,7 +14,8 @@ import pytest
 from hydra.types import RunMode
 from test_train import config, read_metrics, tiny
 
-from gchgg import loggers, parts, run_info, train
+from gchgg import config as gchgg_config
+from gchgg import loggers, run_info, train
 
 
 def run(tmp_path: Path, backend: str, iterations: int = 2, *extra: str) -> Path:
@@ -191,7 +192,7 @@ def test_sweep_jobs_share_a_group_named_after_the_sweep(tmp_path, monkeypatch):
 def test_an_unknown_backend_fails_before_training_naming_the_setting(backend):
     with pytest.raises(ValueError, match=r"logging\.backend: unknown backend '(tensorbord|wandbb)'; the backends are "
                                          r"csv, tensorboard, wandb, mlflow"):  # fmt: skip
-        parts.check_config(config([f"logging.backend={backend}"]))
+        gchgg_config.check(config([f"logging.backend={backend}"]))
 
 
 def test_a_backend_without_its_package_names_the_extra_to_install(monkeypatch):
@@ -199,7 +200,7 @@ def test_a_backend_without_its_package_names_the_extra_to_install(monkeypatch):
     monkeypatch.setattr(loggers.importlib.util, "find_spec", lambda name: None if name == "wandb" else find_spec(name))
     message = r'logging\.backend=wandb needs the wandb package: pip install -e "\.\[wandb\]"'
     with pytest.raises(ImportError, match=message):
-        parts.check_config(config(["logging.backend=[csv,wandb]"]))
+        gchgg_config.check(config(["logging.backend=[csv,wandb]"]))
 
 
 def test_metrics_csv_is_unchanged_by_the_backends(tmp_path):

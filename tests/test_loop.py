@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from hydra.errors import ConfigCompositionException
 from test_train import config, tiny
 
 from gchgg import evaluator, train
@@ -216,8 +217,11 @@ def test_bad_loop_settings_name_themselves(tmp_path):
         trainer(tmp_path, "curriculum.scale=z")
     with pytest.raises(ValueError, match="curriculum.proximity must be one of"):
         trainer(tmp_path, "curriculum.proximity=target")
-    with pytest.raises(ValueError, match="tradeoff.update_every='episode' needs tradeoff=adaptive"):
+    # a schedule's section holds only its own settings: gchgg_code's update_every has no place in a fixed λ
+    with pytest.raises(ConfigCompositionException, match="Key 'update_every' not in 'FixedTradeoffConfig'"):
         trainer(tmp_path, "tradeoff=fixed", algo="gchgg_code")
+    for algo, unread in (("her", ("curriculum", "cher", "tradeoff")), ("gchgg", ("cher",)), ("cher", ("curriculum",))):
+        assert all(config([f"algo={algo}"])[section] is None for section in unread)  # holds only what it reads
 
 
 def test_hggs_stop_switches_the_curriculum_to_plain_sampling_and_survives_resume(tmp_path):

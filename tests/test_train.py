@@ -47,7 +47,6 @@ def tiny(tmp_path: Path, iterations: int = 1) -> list[str]:
         "eval.episodes=2",
         "buffer.episodes=8",
         "her.k=1",
-        "cher.pool_size=64",
         "graph.n=[11,11,5]",
         f"graph.cache_dir={tmp_path / 'graphs'}",
         "agent.hidden=[16,16]",
@@ -56,7 +55,13 @@ def tiny(tmp_path: Path, iterations: int = 1) -> list[str]:
     ]
 
 
+TINY_CHER = "cher.pool_size=64"  # CHER's pool in a run of seconds (only algo=cher has a cher section)
+
+
 def config(overrides: list[str]):
+    """The composed config (with :data:`TINY_CHER` for ``algo=cher`` where the overrides set no pool)."""
+    if "algo=cher" in overrides and not any(o.startswith("cher.pool_size=") for o in overrides):
+        overrides = [*overrides, TINY_CHER]
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
         return compose("config", overrides=overrides)
 
@@ -70,7 +75,9 @@ def read_metrics(run_dir: Path) -> list[dict[str, str]]:
 @pytest.mark.parametrize("task", TASKS)
 def test_every_algo_runs_on_every_task_through_the_entry_point(task, algo, tmp_path, monkeypatch):
     run_dir = tmp_path / "run"
-    argv = ["gchgg.train", f"env={task}", f"algo={algo}", *tiny(tmp_path, iterations=2), f"hydra.run.dir={run_dir}"]
+    cher = [TINY_CHER] if algo == "cher" else []
+    argv = ["gchgg.train", f"env={task}", f"algo={algo}", *tiny(tmp_path, iterations=2), *cher,
+            f"hydra.run.dir={run_dir}"]
     monkeypatch.setattr(sys, "argv", argv)
     train.main()
     rows = read_metrics(run_dir)

@@ -1,0 +1,371 @@
+"""The run's settings as structured configs: each one declared once, with its default, its meaning and its check.
+
+``python -m gchgg.train`` composes ``conf/config.yaml``, which holds no values. It starts from the
+schema :class:`RunConfig`, registered with Hydra's ConfigStore as ``base_config``. It then takes one
+choice per group:
+
+- ``env/<task>.yaml`` and ``algo/<method>.yaml``: each task's and each method's own values, typed
+  by :class:`EnvConfig` and :class:`AlgoConfig`;
+- ``graph`` and ``tradeoff``: the schemas :class:`GraphConfig`, :class:`AdaptiveTradeoffConfig`,
+  :class:`ExponentialTradeoffConfig` and :class:`FixedTradeoffConfig`, registered as the groups'
+  options.
+
+A setting that a reusable part takes as an argument gets its default from the part's signature
+(:func:`default_of`). Each default is therefore written once: in the part (the HER ``k``, the
+curriculum's K, eq. 20's η and σ, the graph's lattice), or here for the pipeline's own settings
+(iterations, episodes, evaluation). An algorithm's config holds only what it reads. The ``algo``
+files of the methods without a curriculum, a λ or CHER's pool set ``curriculum``, ``tradeoff`` and
+``cher`` to ``null``.
+
+:func:`check` validates a composed config. Each section's ``check`` method checks its own settings
+and names them ``<section>.<setting>`` (the ``agent`` section: :class:`~gchgg.agent.DDPGConfig`'s own
+checks, prefixed); :func:`check` adds the settings that depend on each other. The parts check their
+own arguments again when they are built: that is their contract as a library.
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING, DictConfig, OmegaConf
+
+from gchgg import loggers
+from gchgg.agent import DDPGConfig
+from gchgg.builders import GOAL_GENERATORS, METRICS, SAMPLERS
+from gchgg.graph import GoalGraph
+from gchgg.hgg import HGGGoalGenerator, TrajectoryPool
+from gchgg.linear import MATMUL_BACKENDS, PRECISIONS
+from gchgg.samplers import AdaptiveTradeoff, CherSampler, ExponentialTradeoff, FixedTradeoff, GraphCurriculumSampler
+from gchgg.transforms import HindsightRelabel
+from gchgg.validation import check_choice, check_number
+
+__all__ = [
+    "AdaptiveTradeoffConfig", "AgentConfig", "AlgoConfig", "BufferConfig", "CheckpointConfig", "CherConfig",
+    "CurriculumConfig", "EnvConfig", "EvalConfig", "ExponentialTradeoffConfig", "FixedTradeoffConfig", "GraphConfig",
+    "HERConfig", "HGGConfig", "LoggingConfig", "NoiseConfig", "RunConfig", "TrainConfig", "check", "default_of",
+    "register",
+]  # fmt: skip
+
+NORMALIZER_SOURCES = ("sampled", "collected")
+
+
+def default_of(part: Any, argument: str) -> Any:
+    """The default of ``argument`` in the signature of ``part`` (a class: its ``__init__``), where it is declared.
+
+    >>> default_of(GraphCurriculumSampler, "num_candidates")
+    8
+    """
+    default = inspect.signature(part).parameters[argument].default
+    if default is inspect.Parameter.empty:
+        raise TypeError(f"{part.__name__}({argument}) has no default to take")
+    return list(default) if isinstance(default, tuple) else default
+
+
+def _positive(section: str, config: Any, names: tuple[str, ...], *, allow_zero: bool = False) -> None:
+    for name in names:
+        check_number(f"{section}.{name}", getattr(config, name), integer=True, low=0, low_open=not allow_zero)
+
+
+@dataclass
+class EnvConfig:
+    """A task (``conf/env/<task>.yaml`` sets every value)."""
+
+    name: str = MISSING  # reach | push_new | pick_no_obstacle | pick_obstacle
+    start: str = MISSING  # the task's start state (original: the authors')
+    threshold: float = MISSING  # success distance in metres (eq. 23)
+    buffer_episodes: int = MISSING  # replay capacity in episodes
+    stop_threshold: float | None = MISSING  # HGG stop: fraction of intermediate goals at their target (null: never)
+
+    def check(self) -> None:
+        check_number("env.threshold", self.threshold, low=0, low_open=True)
+        _positive("env", self, ("buffer_episodes",))
+        if self.stop_threshold is not None:
+            check_number("env.stop_threshold (a fraction, or null)", self.stop_threshold, low=0, high=1)
+
+
+@dataclass
+class AlgoConfig:
+    """A method (``conf/algo/<method>.yaml`` sets every value; DESIGN's table of algorithms)."""
+
+    name: str = MISSING  # her | hgg | ghgg | cher | gchgg | gchgg_code
+    goal_generator: str = MISSING  # none | hgg
+    metric: str = MISSING  # euclidean | graph (goal generation and the sampler's distances)
+    sampler: str = MISSING  # uniform | ebp | curriculum | cher
+
+    def check(self) -> None:
+        check_choice("algo.goal_generator", self.goal_generator, GOAL_GENERATORS)
+        check_choice("algo.metric", self.metric, METRICS)
+        check_choice("algo.sampler", self.sampler, SAMPLERS)
+
+
+@dataclass
+class GraphConfig:
+    """The obstacle-aware goal graph (``graph=default``)."""
+
+    name: str = "default"
+    n: list[int] = field(default_factory=lambda: default_of(GoalGraph, "n"))  # lattice vertices (eqs. 9-10, 12)
+    margin: float = default_of(GoalGraph, "margin")  # safety margin added to every obstacle half-size (m)
+    snap: str = default_of(GoalGraph, "snap")  # goal -> vertex (eq. 14): nearest | floor
+    cache_dir: str | None = None  # the distance tables' cache; null: $GCHGG_CACHE_DIR or ~/.cache/gchgg
+
+
+@dataclass
+class AdaptiveTradeoffConfig:
+    """λ from eq. 20 (``tradeoff=adaptive``, GC-HGG's)."""
+
+    name: str = "adaptive"
+    eta: float = default_of(AdaptiveTradeoff, "eta")  # scale η of eq. 20
+    sigma: float = default_of(AdaptiveTradeoff, "sigma")  # width σ of eq. 20 (m)
+    update_every: str = default_of(AdaptiveTradeoff, "update_every")  # iteration (the paper) | episode (the code)
+
+
+@dataclass
+class ExponentialTradeoffConfig:
+    """λ from eq. 4 (``tradeoff=exponential``, CHER's)."""
+
+    name: str = "exponential"
+    lambda_0: float = default_of(ExponentialTradeoff, "lambda_0")  # λ at iteration 0
+    tau: float = default_of(ExponentialTradeoff, "tau")  # growth per iteration
+
+
+@dataclass
+class FixedTradeoffConfig:
+    """A constant λ (``tradeoff=fixed``)."""
+
+    name: str = "fixed"
+    value: float = default_of(FixedTradeoff, "value")
+
+
+@dataclass
+class TrainConfig:
+    """The training loop (Alg. 2)."""
+
+    iterations: int = 200  # training iterations ("cycles", the x-axis of the paper's plots)
+    episodes: int = 50  # episodes collected per iteration
+    # C: an iteration collects its episodes in C batched chunks, each followed by its share of the updates
+    # and a normaliser update (C = episodes: the original per-episode loop); must divide episodes
+    chunks: int = "${train.episodes}"  # type: ignore[assignment]  # an interpolation
+    updates: int = 1000  # DDPG updates per iteration, spread over the chunks
+    batch_size: int = 256  # transitions per DDPG update
+    warmup_steps: int = 10000  # env steps of uniform random actions before the policy acts
+    update_during_warmup: bool = False  # also update on warm-up data (the original does not)
+    stop_success: float | None = None  # stop once the success rate holds this for stop_patience evaluations
+    stop_patience: int = 5  # evaluations the success rate must hold stop_success for
+
+    def check(self) -> None:
+        _positive("train", self, ("iterations", "episodes", "chunks", "batch_size", "stop_patience"))
+        _positive("train", self, ("updates", "warmup_steps"), allow_zero=True)
+        if self.episodes % self.chunks:
+            raise ValueError(
+                f"train.chunks must divide train.episodes (each chunk collects the same number of episodes), "
+                f"got train.chunks={self.chunks} for train.episodes={self.episodes}"
+            )
+        if self.stop_success is not None:
+            check_number("train.stop_success (a success rate, or null)", self.stop_success, low=0, high=1)
+
+
+@dataclass
+class EvalConfig:
+    """Evaluation on target goals."""
+
+    episodes: int = 100  # deterministic evaluation episodes
+    every: int = 1  # iterations between evaluations (and after the last); the early stop counts evaluations
+    background: bool = False  # evaluate each policy snapshot in a second process while training goes on
+    noise_std: float = 0.0  # metres: the observation noise (noise.object_std) in evaluation episodes too
+
+    def check(self) -> None:
+        _positive("eval", self, ("episodes", "every"))
+        check_number("eval.noise_std", self.noise_std, low=0)
+
+
+@dataclass
+class NoiseConfig:
+    """Observation noise in training rollouts (a camera's error)."""
+
+    object_std: float = 0.0  # metres of Gaussian noise on the observed object (reach: grip) position; 0: off
+
+    def check(self) -> None:
+        check_number("noise.object_std", self.object_std, low=0)
+
+
+@dataclass
+class BufferConfig:
+    """The replay buffer."""
+
+    episodes: int = "${env.buffer_episodes}"  # type: ignore[assignment]  # FIFO capacity in episodes
+
+    def check(self) -> None:
+        _positive("buffer", self, ("episodes",))
+
+
+@dataclass
+class HGGConfig:
+    """HGG's goal generator (eqs. 5-7), for ``algo.goal_generator=hgg``."""
+
+    pool_size: int = default_of(TrajectoryPool, "capacity")  # trajectories kept in the pool (FIFO)
+    c: float = default_of(HGGGoalGenerator, "c")  # weight of the initial-state distance in eq. 6
+    L: float = default_of(HGGGoalGenerator, "L")  # Lipschitz constant of eqs. 5-7
+
+    def check(self) -> None:
+        _positive("hgg", self, ("pool_size",))
+
+
+@dataclass
+class CurriculumConfig:
+    """The graph-curriculum sampler (Alg. 1), for ``algo.sampler=curriculum``."""
+
+    num_candidates: int = default_of(GraphCurriculumSampler, "num_candidates")  # K candidate batches per sample
+    proximity: str = "goal_to_target"  # goal_to_target (eq. 15) | achieved_to_goal (the authors' code)
+    diversity_of: str = "goal"  # goal (eq. 19) | achieved (the transitions' achieved goals: the code)
+    diversity_metric: str = "${algo.metric}"  # graph | euclidean: metric of F_div's nearest neighbours
+    scale: str = default_of(GraphCurriculumSampler, "scale")  # raw | standardized (each term over its std)
+
+
+@dataclass
+class CherConfig:
+    """CHER's greedy selection, for ``algo.sampler=cher``."""
+
+    pool_size: int = default_of(CherSampler, "pool_size")  # transitions each batch is picked from
+
+
+@dataclass
+class HERConfig:
+    """HER relabelling."""
+
+    k: int = default_of(HindsightRelabel, "k")  # relabelled copies per step (ratio k/(k+1))
+    strategy: str = default_of(HindsightRelabel, "strategy").value  # future | final | episode
+
+    def check(self) -> None:
+        _positive("her", self, ("k",), allow_zero=True)
+
+
+def _ddpg(name: str) -> Any:
+    """The default of :class:`~gchgg.agent.DDPGConfig`'s field ``name``, where it is declared."""
+    return DDPGConfig.__dataclass_fields__[name].default
+
+
+@dataclass
+class AgentConfig:
+    """DDPG's hyperparameters (:class:`gchgg.agent.DDPGConfig`'s fields with its defaults: the original
+    code's) and where the normalisers' statistics come from."""
+
+    hidden: list[int] = field(default_factory=lambda: list(_ddpg("hidden")))  # hidden sizes of actor and critic
+    actor_lr: float = _ddpg("actor_lr")  # Adam learning rate of the actor
+    critic_lr: float = _ddpg("critic_lr")  # Adam learning rate of the critic
+    gamma: float = _ddpg("gamma")  # discount
+    polyak: float = _ddpg("polyak")  # target <- polyak * target + (1 - polyak) * online
+    target_update_every: int = _ddpg("target_update_every")  # updates between two soft target updates
+    action_l2: float = _ddpg("action_l2")  # weight of mean(pi^2) in the actor loss
+    clip_return: bool = _ddpg("clip_return")  # clip the bootstrapped Q' to [-1/(1-gamma), 0]
+    random_eps: float = _ddpg("random_eps")  # probability of a uniform random action while exploring
+    noise_std: float = _ddpg("noise_std")  # std of the Gaussian exploration noise (eq. 22)
+    norm_std_min: float = _ddpg("norm_std_min")  # std floor of the normalisers
+    norm_clip: float = _ddpg("norm_clip")  # normalised inputs are clipped to +-norm_clip
+    normalizer_source: str = "sampled"  # sampled: from a batch drawn after each chunk (the original) | collected
+
+    def check(self) -> None:
+        self.ddpg()
+        check_choice("agent.normalizer_source", self.normalizer_source, NORMALIZER_SOURCES)
+
+    def ddpg(self) -> DDPGConfig:
+        """The learner's own hyperparameters (all but ``normalizer_source``, which the loop reads), checked
+        by :class:`~gchgg.agent.DDPGConfig` (a bad one names ``agent.<setting>``)."""
+        try:
+            return DDPGConfig(**{name: getattr(self, name) for name in DDPGConfig.__dataclass_fields__})
+        except ValueError as error:
+            raise ValueError(f"agent.{error}") from None
+
+
+@dataclass
+class CheckpointConfig:
+    """Checkpoints."""
+
+    every: int = 1  # iterations between checkpoints (and after the last); a resumed run repeats the rest
+
+    def check(self) -> None:
+        _positive("checkpoint", self, ("every",))
+
+
+@dataclass
+class LoggingConfig:
+    """Trackers and progress output (:mod:`gchgg.loggers`)."""
+
+    backend: Any = "csv"  # csv | tensorboard | wandb | mlflow, or a list: [csv,tensorboard,wandb]
+    project: str = "gchgg"  # W&B project (a sweep's runs are grouped by its folder's name)
+    mlflow_uri: str | None = None  # MLflow tracking URI (null: $MLFLOW_TRACKING_URI, else a SQLite file)
+    progress: bool = True  # show a progress bar
+
+    def check(self) -> None:
+        loggers.check_backends(self.backend)  # a known name, its package installed
+
+
+@dataclass
+class RunConfig:
+    """One training run: the top-level settings and one section per part."""
+
+    seed: int = 0  # seeds the env, the networks and every generator of the run (gchgg.parts.SEEDS)
+    resume: bool = False  # continue the run in the run folder from its last checkpoint
+    init_from: str | None = None  # a run folder: start from its last checkpoint with these settings (a fork)
+    threads: int = 1  # torch CPU threads (1: fastest for these small nets on a shared machine; 0: torch's)
+    matmul: str = "auto"  # the wide layers' products: auto (oneDNN where torch has it) | onednn | default
+    precision: str = "auto"  # their dtype in updates: auto (bfloat16 where native) | float32 | bfloat16
+    env: EnvConfig = field(default_factory=EnvConfig)
+    algo: AlgoConfig = field(default_factory=AlgoConfig)
+    graph: GraphConfig = field(default_factory=GraphConfig)
+    tradeoff: Any = None  # the λ schedule's section (tradeoff=adaptive | exponential | fixed); null: no λ
+    train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    buffer: BufferConfig = field(default_factory=BufferConfig)
+    hgg: HGGConfig = field(default_factory=HGGConfig)
+    curriculum: CurriculumConfig | None = field(default_factory=CurriculumConfig)
+    cher: CherConfig | None = field(default_factory=CherConfig)
+    her: HERConfig = field(default_factory=HERConfig)
+    agent: AgentConfig = field(default_factory=AgentConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    logging: LoggingConfig = field(default_factory=LoggingConfig)
+
+    def check(self) -> None:
+        """Each section's settings (its ``check``), then the top-level ones."""
+        for section in (self.env, self.algo, self.train, self.eval, self.noise, self.buffer, self.hgg, self.her,
+                        self.agent, self.checkpoint, self.logging):  # fmt: skip
+            section.check()
+        _positive("run", self, ("threads",), allow_zero=True)
+        check_choice("matmul", self.matmul, MATMUL_BACKENDS)
+        check_choice("precision", self.precision, PRECISIONS)
+
+
+def register() -> None:
+    """Register the schema (``base_config``) and the schema-only group options with Hydra's ConfigStore."""
+    store = ConfigStore.instance()
+    store.store(name="base_config", node=RunConfig)
+    store.store(group="graph", name="default", node=GraphConfig)
+    for name, node in (("adaptive", AdaptiveTradeoffConfig), ("exponential", ExponentialTradeoffConfig),
+                       ("fixed", FixedTradeoffConfig)):  # fmt: skip
+        store.store(group="tradeoff", name=name, node=node)
+
+
+def check(cfg: DictConfig) -> RunConfig:
+    """Check a composed config before anything is built: each section's settings (its ``check``),
+    then those that depend on each other. Returns it as a :class:`RunConfig`; a bad setting is a
+    ``ValueError`` naming it."""
+    run = OmegaConf.to_object(cfg)
+    if not isinstance(run, RunConfig):
+        raise TypeError(f"a training config is composed from conf/config.yaml (base_config), got {type(run).__name__}")
+    run.check()
+    algo = run.algo
+    if run.train.episodes < 2 and algo.goal_generator == "hgg":
+        raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {run.train.episodes}")
+    for section, sampler in (("curriculum", "curriculum"), ("cher", "cher")):
+        if algo.sampler == sampler and getattr(run, section) is None:
+            raise ValueError(f"algo.sampler={sampler} reads the {section} section, which algo={algo.name} sets to null")
+    if algo.sampler in ("curriculum", "cher") and run.tradeoff is None:
+        raise ValueError(f"algo.sampler={algo.sampler} weighs diversity against proximity and needs a λ schedule: "
+                         "tradeoff=adaptive | exponential | fixed")
+    return run
+
+
+register()

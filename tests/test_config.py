@@ -1,0 +1,91 @@
+"""Structured configs (gchgg/config.py): each setting and its default declared once, each algorithm's config
+holding only what it reads, a bad setting named."""
+
+from __future__ import annotations
+
+import inspect
+import re
+from dataclasses import fields
+from pathlib import Path
+
+import pytest
+import yaml
+from omegaconf import OmegaConf
+from test_train import config
+
+from gchgg import builders
+from gchgg import config as schema
+from gchgg.agent import DDPGConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_config_yaml_holds_choices_not_values():
+    text = yaml.safe_load((ROOT / "conf" / "config.yaml").read_text())
+    assert set(text) == {"defaults", "hydra"}
+    assert text["defaults"][0] == "base_config"
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "conf" / "algo").glob("*.yaml")), ids=lambda p: p.stem)
+def test_an_algorithm_file_restates_no_default(path):
+    """What an algo file sets differs from the schema's default (else it is a second declaration)."""
+    base = OmegaConf.structured(schema.RunConfig)
+    own = yaml.safe_load(path.read_text())
+    for section, values in own.items():
+        if section in ("defaults", "algo") or values is None:
+            continue
+        defaults = {"tradeoff": OmegaConf.structured(schema.AdaptiveTradeoffConfig)}.get(section, base[section])
+        for key, value in values.items():
+            default = OmegaConf.to_container(defaults)[key]  # unresolved: ${algo.metric} stays a reference
+            assert default != value, f"{path.name}: {section}.{key}={value!r} is the default"
+
+
+def test_the_schema_takes_the_parts_defaults_and_the_builders_declare_none():
+    assert schema.CurriculumConfig().num_candidates == inspect.signature(
+        schema.GraphCurriculumSampler).parameters["num_candidates"].default
+    assert schema.HGGConfig().c == inspect.signature(schema.HGGGoalGenerator).parameters["c"].default
+    assert schema.GraphConfig().n == list(inspect.signature(schema.GoalGraph).parameters["n"].default)
+    agent = {f.name for f in fields(schema.AgentConfig)}
+    assert agent == {f.name for f in fields(DDPGConfig)} | {"normalizer_source"}
+    assert schema.AgentConfig().ddpg() == DDPGConfig()  # the same defaults
+    # not settings: a mode switch (observation noise) and the task geometry a Euclidean metric has no use for
+    allowed = {("make_relabel", "true_achieved_goal_key"), ("make_metric", "field"), ("make_metric", "obstacles")}
+    for name, builder in inspect.getmembers(builders, inspect.isfunction):
+        if name.startswith("make_"):
+            for parameter in inspect.signature(builder).parameters.values():
+                if parameter.default is not inspect.Parameter.empty:
+                    assert (name, parameter.name) in allowed, f"{name}({parameter.name}=...) declares a default"
+
+
+def test_the_discount_is_declared_once():
+    """The issue's example: gamma = 0.98 was declared in config.yaml, twice in agent.py and in hgg.py."""
+    found = [(path.relative_to(ROOT), line) for path in [*ROOT.glob("gchgg/**/*.py"), *ROOT.glob("conf/**/*.yaml")]
+             for line in path.read_text().splitlines() if re.search(r"gamma\W[^(]*0\.98", line)]
+    assert [str(path) for path, _ in found] == ["gchgg/agent.py"], found
+
+
+def test_each_algorithm_holds_only_the_sections_it_reads():
+    reads = {"her": set(), "hgg": set(), "ghgg": set(), "cher": {"tradeoff", "cher"},
+             "gchgg": {"tradeoff", "curriculum"}, "gchgg_code": {"tradeoff", "curriculum"}}  # fmt: skip
+    for algo, sections in reads.items():
+        cfg = config([f"algo={algo}"])
+        assert {s for s in ("tradeoff", "curriculum", "cher") if cfg[s] is not None} == sections, algo
+        schema.check(cfg)
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("train.chunks=7", "train.chunks must divide train.episodes"),
+        ("eval.every=0", "eval.every must be an integer > 0, got 0"),
+        ("her.k=-1", "her.k must be an integer >= 0, got -1"),
+        ("hgg.pool_size=0", "hgg.pool_size must be an integer > 0, got 0"),
+        ("env.stop_threshold=1.5", r"env.stop_threshold \(a fraction, or null\) must be a number in \[0, 1\]"),
+        ("algo.sampler=best", "algo.sampler must be one of"),
+        ("precision=fp16", "precision must be one of 'auto', 'float32', 'bfloat16', got 'fp16'"),
+        ("agent.polyak=2", r"agent.polyak must be a number in \[0, 1\], got 2"),
+    ],
+)
+def test_a_bad_setting_is_named_where_it_is_declared(override, message):
+    with pytest.raises(ValueError, match=message):
+        schema.check(config([override]))
