@@ -125,7 +125,7 @@ def _written(folder: Path, since: float) -> int:
 def checkpoint_cost(trainer: Trainer, run_dir: Path) -> None:
     """Checkpoint seconds, bytes written and peak memory per iteration with a full buffer of 5,000
     push_new episodes, against the full-buffer checkpoint written before (one run, same buffer)."""
-    template = trainer.relabel(trainer_rollout(trainer))  # one chunk's transitions, as stored
+    template = trainer.parts.relabel(trainer_rollout(trainer))  # one chunk's transitions, as stored
     per_iteration = trainer.cfg.train.episodes // trainer.env.num_envs  # chunks of one iteration
     capacity_episodes = trainer.cfg.buffer.episodes
     iterations_to_fill = capacity_episodes // trainer.cfg.train.episodes

@@ -89,3 +89,18 @@ def test_each_algorithm_holds_only_the_sections_it_reads():
 def test_a_bad_setting_is_named_where_it_is_declared(override, message):
     with pytest.raises(ValueError, match=message):
         schema.check(config([override]))
+
+
+def test_a_trainer_is_built_and_trains_from_the_schema_without_hydra(tmp_path):
+    """The schema is plain dataclasses: a notebook or a test builds a run's config without Hydra's composition."""
+    from gchgg import train
+
+    run = schema.RunConfig(
+        env=schema.EnvConfig(name="reach", start="original", threshold=0.05, buffer_episodes=8, stop_threshold=1.0),
+        algo=schema.AlgoConfig(name="her", goal_generator="none", metric="euclidean", sampler="ebp"),
+        train=schema.TrainConfig(iterations=2, episodes=2, updates=3, batch_size=16, warmup_steps=0),
+        eval=schema.EvalConfig(episodes=2), her=schema.HERConfig(k=1), agent=schema.AgentConfig(hidden=[16, 16]),
+        logging=schema.LoggingConfig(progress=False), curriculum=None, cher=None,
+    )  # fmt: skip
+    rows = train.Trainer(OmegaConf.structured(run), tmp_path).train()
+    assert [row["iteration"] for row in rows] == [0, 1] and (tmp_path / "metrics.csv").is_file()
