@@ -27,6 +27,11 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
 - ``faster`` (``than`` B): P(a run of the group reaches 0.9 in fewer iterations than a run of B), ties
   and pairs whose order censoring leaves open counted half (:func:`gchgg.stats.probability_of_improvement`).
   Holds if its CI lies above 0.5, contradicted if below 0.5, else undecided.
+- ``faster_paired`` (``than`` B, ``pairs`` F): paired forks (:mod:`gchgg.fork`) in ``<results>/<task>/F/``,
+  the group's and B's runs paired by seed: the mean paired difference group − B of first ≥ 0.9
+  (:func:`gchgg.stats.paired_difference_interval`; a censored run counted one past its censoring
+  iteration). Holds if its CI lies below 0 (the group reaches 0.9 earlier), contradicted if above 0,
+  else undecided; undecided below ``min_pairs`` pairs (default 8).
 
 An entry with a list of ``groups`` (or of ``than``) is one claim per member; ``{name}`` and
 ``{than}`` in its ``claim`` are replaced by the display names of ``names``.
@@ -45,9 +50,11 @@ import numpy as np
 
 from gchgg import plot, stats
 
-__all__ = ["Claim", "Row", "judge", "load_claims", "main", "measure", "render", "seed_files", "summary", "verdicts"]
+__all__ = ["Claim", "Row", "judge", "judge_paired", "load_claims", "main", "measure", "render", "seed_files", "summary",
+           "verdicts"]
 
-KINDS = {"reaches_by": ("by",), "fails": ("within",), "final": ("level", "spread"), "faster": ("than",)}
+KINDS = {"reaches_by": ("by",), "fails": ("within",), "final": ("level", "spread"), "faster": ("than",),
+         "faster_paired": ("than", "pairs")}
 """Each kind of claim and the fields it needs besides id, task, groups, claim and paper."""
 
 VERDICTS = ("holds", "contradicted", "undecided")
@@ -68,6 +75,7 @@ class Claim:
     level: float = math.nan
     spread: float = math.nan
     than: str = ""
+    pairs: str = ""  # faster_paired: the task's subfolder of paired forks
 
 
 @dataclass
@@ -91,7 +99,8 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
 
     data = yaml.safe_load(Path(path).read_text()) or {}
     names = data.get("names") or {}
-    settings = {"min_runs": int(data.get("min_runs", 3)), "slack": float(data.get("slack", 0.1))}
+    settings = {"min_runs": int(data.get("min_runs", 3)), "slack": float(data.get("slack", 0.1)),
+                "min_pairs": int(data.get("min_pairs", 8))}
     if settings["min_runs"] < 1 or settings["slack"] < 0:
         raise ValueError(f"{path}: min_runs {settings['min_runs']}, slack {settings['slack']}; allowed: "
                          "min_runs 1 or more, slack 0 or more")
@@ -118,7 +127,7 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
                 claims.append(Claim(
                     id=f"{entry['id']}{suffix}", task=entry["task"], kind=kind, group=group, than=than,
                     claim=entry["claim"].format(name=names.get(group, group), than=names.get(than, than)),
-                    paper=entry["paper"], **fields))
+                    paper=entry["paper"], pairs=str(entry.get("pairs", "")), **fields))
     if not claims:
         raise ValueError(f"{path}: no claims (a YAML mapping with a `claims` list)")
     return claims, settings
@@ -238,10 +247,40 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     return Row(claim, text, "undecided", "CI contains 0.5")
 
 
-def verdicts(results: str | Path, claims: Sequence[Claim], min_runs: int = 3, slack: float = 0.1) -> list[Row]:
-    """Every claim judged on the runs under ``results`` (``<results>/<task>/``)."""
+def judge_paired(claim: Claim, results: str | Path, min_pairs: int = 8) -> Row:
+    """A ``faster_paired`` claim's row: the forks in ``<results>/<task>/<pairs>/`` paired by seed."""
+    files = seed_files(Path(results) / claim.task / claim.pairs)
+    groups = plot.group_runs([plot.load_run(p) for p in files]) if files else {}
+    task_groups = {label: runs for (_, label), runs in groups.items()}
+    if claim.group not in task_groups or claim.than not in task_groups:
+        return Row(claim, "—; 0 pairs", "undecided", f"0 pairs ({min_pairs} needed)", True)
+    group_scores = plot.scores({key: runs for key, runs in groups.items() if key[1] in (claim.group, claim.than)})
+    first = {}
+    for (_, label), score in group_scores.items():
+        runs = task_groups[label]
+        first[label] = {plot.seed_of(r): score.first[i] for i, r in enumerate(runs)}
+    seeds = sorted(set(first[claim.group]) & set(first[claim.than]) - {None})
+    if not seeds:
+        return Row(claim, "—; 0 pairs", "undecided", f"0 pairs ({min_pairs} needed)", True)
+    difference = stats.paired_difference_interval([first[claim.group][k] for k in seeds],
+                                                  [first[claim.than][k] for k in seeds])
+    text = (f"{claim.group} − {claim.than} on first ≥ {plot.THRESHOLD}, paired forks: mean {difference.format(1)}; "
+            f"{difference.runs} pair{'s' * (difference.runs != 1)}")
+    if difference.runs < min_pairs:
+        return Row(claim, text, "undecided", f"{difference.runs} pairs ({min_pairs} needed)", True)
+    if difference.high < 0:
+        return Row(claim, text, "holds", "CI below 0")
+    if difference.low > 0:
+        return Row(claim, text, "contradicted", "CI above 0")
+    return Row(claim, text, "undecided", "CI contains 0")
+
+
+def verdicts(results: str | Path, claims: Sequence[Claim], min_runs: int = 3, slack: float = 0.1,
+             min_pairs: int = 8) -> list[Row]:
+    """Every claim judged on the runs under ``results`` (``<results>/<task>/``; paired forks in its subfolder)."""
     measured = {task: measure(results, task) for task in sorted({c.task for c in claims})}
-    return [judge(c, *measured[c.task], min_runs, slack) for c in claims]
+    return [judge_paired(c, results, min_pairs) if c.kind == "faster_paired"
+            else judge(c, *measured[c.task], min_runs, slack) for c in claims]
 
 
 def summary(rows: Sequence[Row]) -> list[str]:
@@ -260,7 +299,7 @@ def summary(rows: Sequence[Row]) -> list[str]:
     return lines
 
 
-def render(rows: Sequence[Row], command: str, min_runs: int = 3, slack: float = 0.1) -> str:
+def render(rows: Sequence[Row], command: str, min_runs: int = 3, slack: float = 0.1, min_pairs: int = 8) -> str:
     """The Markdown page: how it was made, the table, and the verdict lines."""
     def cell(text: str) -> str:
         return text.replace("|", "\\|")
@@ -276,7 +315,8 @@ def render(rows: Sequence[Row], command: str, min_runs: int = 3, slack: float = 
         "IQM [95 % CI]: interquartile mean over runs with a",
         "stratified-bootstrap interval; P(A beats B): probability of improvement, ties counted half",
         f"(`gchgg/stats.py`, rliable's definitions). Undecided below {min_runs} runs per group; \"by N\" claims hold",
-        f"up to N + {100 * slack:g} %.",
+        f"up to N + {100 * slack:g} %. Paired forks (`<task>/<subfolder>/`, runs paired by seed): the mean paired",
+        f"difference with a bootstrap interval over pairs, undecided below {min_pairs} pairs.",
         "",
         "| id | claim | paper | measured | verdict |",
         "|---|---|---|---|---|",

@@ -131,3 +131,27 @@ def test_the_committed_claims_table_is_the_commands_output_and_the_readme_quotes
     assert len(lines) == 3
     for line in lines:
         assert line in readme, f"README.md does not quote claims.md's verdict line {line[:40]!r}"
+
+
+def test_paired_forks_are_judged_by_the_mean_paired_difference(tmp_path):
+    """faster_paired: forks paired by seed in <task>/<pairs>/; holds when the CI of A − B lies below 0,
+    undecided below min_pairs pairs or when the CI contains 0."""
+    forks = tmp_path / "toy" / "forks"
+    for seed in range(8):  # A reaches 0.9 two iterations before B in every pair, from seed-dependent starts
+        write_csv(forks / f"a-seed{seed}.csv", reaching(5 + seed % 3))
+        write_csv(forks / f"b-seed{seed}.csv", reaching(7 + seed % 3))
+        write_csv(forks / f"c-seed{seed}.csv", reaching(5 + seed % 3 + (1 if seed % 2 else -1)))  # a: ahead, behind
+    write_csv(forks / "b-seed9.csv", reaching(3))  # no partner: left out
+    (tmp_path / "claims.yaml").write_text("""
+min_pairs: 8
+claims:
+  - {id: p, task: toy, kind: faster_paired, groups: [a], than: [b, c], pairs: forks, claim: "{name} < {than}",
+     paper: "x"}
+""")
+    loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
+    rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
+    assert rows["p-b"].verdict == "holds" and "mean -2.0 [-2.0, -2.0]; 8 pairs" in rows["p-b"].measured
+    assert rows["p-c"].verdict == "undecided" and rows["p-c"].reason == "CI contains 0"
+    settings["min_pairs"] = 9
+    rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
+    assert rows["p-b"].verdict == "undecided" and rows["p-b"].reason == "8 pairs (9 needed)"
