@@ -415,7 +415,7 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
             by_seed.append({seed_of(r): (r, score.first[i], score.censored[i]) for i, r in enumerate(runs)})
         seeds = sorted(set(by_seed[0]) & set(by_seed[1]) - {None})
         alone = sorted(str(s) for s in set(by_seed[0]) ^ set(by_seed[1]))
-        lines.append(f"{task}: {len(seeds)} pairs of {first} (A) and {second} (B) by seed"
+        lines.append(f"{task}: {len(seeds)} pair{'s' * (len(seeds) != 1)} of {first} (A) and {second} (B) by seed"
                      + (f"; without a partner: seed {', '.join(alone)}" if alone else ""))
         if not seeds:
             continue
@@ -437,7 +437,8 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
             a_values, b_values = values[finite, 0], values[finite, 1]
             estimate = stats.paired_difference_interval(a_values, b_values, rng=rng)
             ahead, behind = int((a_values < b_values).sum()), int((a_values > b_values).sum())
-            lines.append(f"  {name}, A - B over {estimate.runs} pairs: mean {estimate.format(1)}; A ahead in {ahead}, "
+            pairs = f"{estimate.runs} pair{'s' * (estimate.runs != 1)}"
+            lines.append(f"  {name}, A - B over {pairs}: mean {estimate.format(1)}; A ahead in {ahead}, "
                          f"level in {estimate.runs - ahead - behind}, behind in {behind}")
     return lines
 
