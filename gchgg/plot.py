@@ -51,6 +51,13 @@ pick_no_obstacle 200, pick_obstacle 400), else the task's longest run's length.
 run of B on each score (fewer iterations to 0.9; a larger AUC), with its 95 % interval, instead of
 the table (``--table`` and ``--out`` still write theirs).
 
+``--task NAME`` takes every run as one of task ``NAME`` (one panel, that task's budget), for runs of a
+task kept in several folders, e.g. a Fig. 6 ablation's CSVs (``docs/results/fig6/eta/500-seed0.csv``,
+group ``500``) beside the default setting's runs (``docs/results/pick_no_obstacle/gchgg-seed0.csv``)::
+
+    python -m gchgg.plot docs/results/fig6/eta/*.csv docs/results/pick_no_obstacle/gchgg-seed[012].csv \
+        --task pick_no_obstacle --y success_rate lambda diversity_decided --out eta.png --table eta.md
+
 ``--pairs A B`` pairs the runs of A and B by seed (paired forks: two forks of one checkpoint with the
 same new seed, :mod:`gchgg.fork`) and prints, per pair, both runs' HGG stop iteration and first
 iteration at ≥ 0.9 (censored as above, marked ``>``), their differences A − B, and per score the mean
@@ -563,6 +570,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--compare", nargs=2, metavar=("A", "B"),
                         help="print P(a run of group A beats one of group B) per task, on both scores, "
                              "instead of the table")
+    parser.add_argument("--task", help="treat every run as one of this task (its budget, one panel): runs of one "
+                                       "task kept in several folders, e.g. a Fig. 6 ablation beside its default runs")
     parser.add_argument("--pairs", nargs=2, metavar=("A", "B"),
                         help="pair the runs of groups A and B by seed (paired forks) and print the paired "
                              "differences A - B of HGG stop and first >= 0.9, instead of the table")
@@ -572,6 +581,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.auc_range is not None and args.auc_range < 1:
         parser.error(f"--auc-range {args.auc_range}: the AUC is the mean over iterations 0 ... R-1; allowed: R >= 1")
     runs = find_runs(args.paths)
+    if args.task:  # one task for all: runs from several folders in one panel (a Fig. 6 ablation and its default)
+        for run in runs:
+            run.task = args.task
     logged = {key for run in runs for row in run.rows for key in row}
     unknown = [name for name in args.y if name not in logged]
     if unknown:

@@ -319,3 +319,13 @@ def test_pairs_match_runs_by_seed_and_give_paired_differences(tmp_path, capsys):
     assert "HGG stop, A - B over 3 pairs: mean -0.7 [-1.0, 0.0]; A ahead in 2, level in 1, behind in 0" in out
     with pytest.raises(SystemExit):
         plot.main([str(folder), "--pairs", "gchgg", "cher"])
+
+
+def test_task_puts_runs_of_several_folders_in_one_panel(tmp_path, capsys):
+    """A Fig. 6 ablation's CSVs beside the default setting's runs, kept in the task's own folder."""
+    write_csv(tmp_path / "fig6" / "eta" / "500-seed0.csv", [0.0] * 5 + [0.95] * 5)
+    write_csv(tmp_path / "pick_no_obstacle" / "gchgg-seed0.csv", [0.0] * 3 + [0.95] * 7)
+    plot.main([str(tmp_path / "fig6" / "eta" / "500-seed0.csv"), str(tmp_path / "pick_no_obstacle" / "gchgg-seed0.csv"),
+               "--task", "pick_no_obstacle", "--at", "5"])
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| pick_no_obstacle")]
+    assert [row.split(" | ")[1] for row in rows] == ["500", "gchgg"]
