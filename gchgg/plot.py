@@ -22,8 +22,8 @@ train_success_rate object_rose_10cm`` draws a run's diagnostics beside its succe
 the iteration HGG's stop condition switched it to target goals (``stopped``), the iterations from
 that stop to the first success ≥ 0.9 (after the stop the curriculum samples plainly, so every HGG
 variant trains the same way from there), the mean
-``diversity_decided`` fraction while the curriculum was active (before that stop), and wall-clock
-hours.
+``diversity_decided`` fraction while the curriculum was active (before that stop), wall-clock
+hours, and seconds per iteration (a run's median: what an iteration of the method costs).
 
 Two scores per run, summarised per group by their interquartile mean with a 95 % stratified-bootstrap
 interval (:mod:`gchgg.stats`, rliable's definitions), are in the table too:
@@ -107,7 +107,11 @@ class Run:
     @property
     def hours(self) -> float:
         """Wall-clock hours of the logged iterations: the sum of the ``seconds_*`` columns."""
-        return sum(v for row in self.rows for k, v in row.items() if k.startswith("seconds_")) / 3600.0
+        return sum(self.iteration_seconds()) / 3600.0
+
+    def iteration_seconds(self) -> list[float]:
+        """Each logged iteration's wall-clock seconds: the sum of its ``seconds_*`` columns."""
+        return [sum(v for k, v in row.items() if k.startswith("seconds_")) for row in self.rows]
 
 
 def _flatten(tree: dict, prefix: str = "") -> dict[str, str]:
@@ -482,7 +486,8 @@ def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100
     for name in columns:
         head += [*(f"{name} at {i}" for i in at), f"final {name}"]
     head += [f"first ≥ {THRESHOLD} IQM [95 % CI]", "censored", "AUC IQM [95 % CI]"]
-    head += ["last iteration", "HGG stop", "first ≥ 0.9 − HGG stop", "diversity decided (before the stop)", "hours"]
+    head += ["last iteration", "HGG stop", "first ≥ 0.9 − HGG stop", "diversity decided (before the stop)", "hours",
+             "s/iteration"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for (task, label), runs in sorted(groups.items()):
         reached = {t: [first_at(r, t) for r in runs] for t in (0.5, 0.9)}
@@ -508,6 +513,7 @@ def table(groups: dict[tuple[str, str], list[Run]], at: Sequence[int] = (70, 100
         decided = [_while_curriculum(r, "diversity_decided") for r in runs if "diversity_decided" in r.rows[-1]]
         cells.append(f"{np.mean(decided):.2f}" if decided else "—")
         cells.append(_fmt(iqr([r.hours for r in runs]), 2))
+        cells.append(_fmt(iqr([float(np.median(r.iteration_seconds())) for r in runs]), 1))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

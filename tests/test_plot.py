@@ -52,7 +52,8 @@ def test_medians_quartiles_and_first_iterations(sweep):
     text = plot.table(groups, at=(1, 3))
     row = next(line for line in text.splitlines() if "| ghgg" in line)
     assert "| 3 | 2 [1.5, never] (2/3) | never [never, never] (1/3) | 0.20 [0.10, 0.35] | 0.70 [0.40, 0.82] |" in row
-    assert row.endswith("| — | — | — | 0.40 [0.35, 0.40] |")  # no HGG stop logged; hours: 4, 4, 3 rows of 360 s
+    # no HGG stop logged; hours: 4, 4, 3 rows of 360 s; each iteration 360 s
+    assert row.endswith("| — | — | — | 0.40 [0.35, 0.40] | 360.0 [360.0, 360.0] |")
     # past every run's end (iterations 0-3) each run counts with its last value: the final column's figures
     past = next(line for line in plot.table(groups, at=(9,)).splitlines() if "| ghgg" in line)
     assert "| 0.70 [0.40, 0.82] | 0.70 [0.40, 0.82] |" in past
