@@ -144,9 +144,9 @@ def main() -> None:
     cfg = OmegaConf.load(args.run / "config.yaml")
     geometry = envs.geometry(cfg.env.name)
     start_height = None if geometry.object_range is None else float(geometry.object_range.center[2])
-    g = cfg.graph
-    metric = make_metric(
-        cfg.algo.metric, geometry.field, geometry.obstacles, n=tuple(g.n), margin=g.margin, snap=g.snap,
+    g = cfg.get("graph")
+    metric = make_metric("euclidean") if cfg.algo.metric != "graph" else make_metric(
+        "graph", geometry.field, geometry.obstacles, n=tuple(g.n), margin=g.margin, snap=g.snap,
         cache_dir=g.cache_dir,
     )
     capacity = cfg.buffer.episodes * (cfg.her.k + 1) * geometry.episode_length

@@ -47,6 +47,7 @@ from torchrl.data import TensorDictReplayBuffer  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg.builders import make_metric, make_sampler, make_tradeoff  # noqa: E402
+from gchgg.config import GraphConfig  # noqa: E402
 
 DEFAULT = {"eta": 1000.0, "sigma": 0.3}
 SETTINGS = (  # (sweep, value, η, σ, metric); the default of every sweep first
@@ -112,9 +113,10 @@ def main() -> None:
                      f"(got {distance}): pass --distance D (metres, >= 0)")
     cfg = OmegaConf.load(args.run / "config.yaml")
     geometry = envs.geometry(cfg.env.name)
-    g = cfg.graph
-    metrics = {kind: make_metric(kind, geometry.field, geometry.obstacles, n=tuple(g.n), margin=g.margin, snap=g.snap,
-                                 cache_dir=g.cache_dir) for kind in ("graph", "euclidean")}
+    g = cfg.get("graph") or OmegaConf.structured(GraphConfig)  # a run with a Euclidean metric saved no graph
+    metrics = {"graph": make_metric("graph", geometry.field, geometry.obstacles, n=tuple(g.n), margin=g.margin,
+                                    snap=g.snap, cache_dir=g.cache_dir),
+               "euclidean": make_metric("euclidean")}
     capacity = cfg.buffer.episodes * (cfg.her.k + 1) * geometry.episode_length
     storage = load_buffer(args.run, args.iteration, capacity)
     batch = cfg.train.batch_size

@@ -10,8 +10,7 @@ only the choices it makes between parts.
 from __future__ import annotations
 
 import inspect
-from collections.abc import Callable, Sequence
-from pathlib import Path
+from collections.abc import Callable
 
 import torch
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
@@ -42,30 +41,26 @@ PROXIMITIES = {  # curriculum.proximity -> (stored goal measured from, stored go
 DIVERSITY_OF = {"goal": "desired_goal", "achieved": "achieved_goal"}  # curriculum.diversity_of -> stored key
 
 
-def make_metric(
-    kind: str,
-    field=None,
-    obstacles=(),
-    *,
-    n: Sequence[int],
-    margin: float,
-    snap: str,
-    cache_dir: str | Path | None,
-):
-    """The goal metric: ``EuclideanMetric()`` or a ``GoalGraph`` over ``field`` with ``obstacles``.
+def make_metric(kind: str, field=None, obstacles=(), **graph):
+    """The goal metric: ``EuclideanMetric()``, or a ``GoalGraph`` over ``field`` with ``obstacles`` and the
+    graph's settings ``n``, ``margin``, ``snap`` and ``cache_dir`` (lattice size, safety margin,
+    goal-to-vertex rule, folder of the distance-table cache: ``None`` is the per-user default), each given.
 
     Args:
         kind: ``"euclidean"`` or ``"graph"``.
         field, obstacles: boxes ``(centre, half-sizes)`` in metres (only for ``"graph"``).
-        n, margin, snap: lattice size, safety margin and goal-to-vertex rule of the graph.
-        cache_dir: folder of the distance-table cache; ``None`` uses the per-user default.
     """
     check_choice("metric", kind, METRICS)
     if kind == "euclidean":
+        if graph:
+            raise ValueError(f"a Euclidean metric takes no graph settings, got {', '.join(graph)}")
         return EuclideanMetric()
-    check_density_criterion(field, obstacles, n, margin)  # eq. 12, before the (long) build
-    return GoalGraph(field, obstacles, n, margin, snap=snap,
-                     cache_dir=USER_CACHE_DIR if cache_dir is None else cache_dir)
+    missing = {"n", "margin", "snap", "cache_dir"} - set(graph)
+    if missing:
+        raise ValueError(f"a graph metric needs the graph's settings; {', '.join(sorted(missing))} missing")
+    check_density_criterion(field, obstacles, graph["n"], graph["margin"])  # eq. 12, before the (long) build
+    cache_dir = USER_CACHE_DIR if graph["cache_dir"] is None else graph["cache_dir"]
+    return GoalGraph(field, obstacles, graph["n"], graph["margin"], snap=graph["snap"], cache_dir=cache_dir)
 
 
 def make_tradeoff(kind: str, **settings):

@@ -14,8 +14,8 @@ A setting that a reusable part takes as an argument gets its default from the pa
 (:func:`default_of`). Each default is therefore written once: in the part (the HER ``k``, the
 curriculum's K, eq. 20's η and σ, the graph's lattice), or here for the pipeline's own settings
 (iterations, episodes, evaluation). An algorithm's config holds only what it reads. The ``algo``
-files of the methods without a curriculum, a λ or CHER's pool set ``curriculum``, ``tradeoff`` and
-``cher`` to ``null``.
+files of the methods without a curriculum, a λ, CHER's pool or a graph metric set ``curriculum``,
+``tradeoff``, ``cher`` and ``graph`` to ``null``.
 
 :func:`check` validates a composed config. Each section's ``check`` method checks its own settings
 and names them ``<section>.<setting>`` (the ``agent`` section: :class:`~gchgg.agent.DDPGConfig`'s own
@@ -103,9 +103,9 @@ class AlgoConfig:
 
 @dataclass
 class GraphConfig:
-    """The obstacle-aware goal graph (``graph=default``)."""
+    """The obstacle-aware goal graph (``graph=default``), for a graph metric (``algo.metric`` or
+    ``curriculum.diversity_metric``)."""
 
-    name: str = "default"
     n: list[int] = field(default_factory=lambda: default_of(GoalGraph, "n"))  # lattice vertices (eqs. 9-10, 12)
     margin: float = default_of(GoalGraph, "margin")  # safety margin added to every obstacle half-size (m)
     snap: str = default_of(GoalGraph, "snap")  # goal -> vertex (eq. 14): nearest | floor
@@ -314,7 +314,7 @@ class RunConfig:
     precision: str = "auto"  # their dtype in updates: auto (bfloat16 where native) | float32 | bfloat16
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
-    graph: GraphConfig = field(default_factory=GraphConfig)
+    graph: GraphConfig | None = None  # the graph=default group; null where no metric is the graph
     tradeoff: Any = None  # the λ schedule's section (tradeoff=adaptive | exponential | fixed); null: no λ
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
@@ -359,6 +359,10 @@ def check(cfg: DictConfig) -> RunConfig:
     algo = run.algo
     if run.train.episodes < 2 and algo.goal_generator == "hgg":
         raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {run.train.episodes}")
+    metrics = {algo.metric, *([run.curriculum.diversity_metric] if algo.sampler == "curriculum" else [])}
+    if "graph" in metrics and run.graph is None:
+        raise ValueError(f"a graph metric (algo.metric or curriculum.diversity_metric) needs the graph section, "
+                         f"which algo={algo.name} leaves out: add graph=default")
     for section, sampler in (("curriculum", "curriculum"), ("cher", "cher")):
         if algo.sampler == sampler and getattr(run, section) is None:
             raise ValueError(f"algo.sampler={sampler} reads the {section} section, which algo={algo.name} sets to null")

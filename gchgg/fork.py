@@ -65,15 +65,15 @@ RECORD = "fork.yaml"
 SOURCE_CONFIG = "config.yaml"
 MAY_DIFFER = (
     "seed", "resume", "init_from", "threads", "matmul", "precision",
-    "algo.name", "algo.sampler", "algo.metric", "graph.*",
+    "algo.name", "algo.sampler", "algo.metric", "graph", "graph.*",
     "curriculum", "curriculum.*", "tradeoff", "tradeoff.*", "cher", "cher.*",  # a section, or null where unread
     "env.stop_threshold", "hgg.c", "hgg.L",
     "train.iterations", "train.stop_success", "train.stop_patience",
     "eval.every", "eval.background", "checkpoint.every", "logging.*",
 )  # fmt: skip
 """Settings a fork may change (``*``: any key under it); every other one must be the source's."""
-SAMPLER = ("seed", "algo.*", "graph.name", "graph.n", "graph.margin", "graph.snap", "curriculum", "curriculum.*",
-           "tradeoff", "tradeoff.*", "cher", "cher.*")  # fmt: skip
+SAMPLER = ("seed", "algo.*", "graph", "graph.name", "graph.n", "graph.margin", "graph.snap", "curriculum",
+           "curriculum.*", "tradeoff", "tradeoff.*", "cher", "cher.*")  # fmt: skip
 """A change in any of these makes the sampler and λ new rather than carried over."""
 STREAMS = ("her_rng", "explore_rng", "torch_rng", "env_random", "eval_env_random", "noise_rng")
 """The checkpoint's random-stream entries (and the buffer's ``_rng``), renewed with a new seed."""

@@ -102,6 +102,8 @@ def make_parts(cfg: DictConfig) -> Parts:
     achieved_key = "true_achieved_goal" if cfg.noise.object_std else "achieved_goal"
 
     def metric_of(kind: str):
+        if kind != "graph":
+            return make_metric(kind)
         return make_metric(kind, geometry.field, geometry.obstacles, n=tuple(graph.n), margin=graph.margin,
                            snap=graph.snap, cache_dir=graph.cache_dir)
 

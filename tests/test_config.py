@@ -65,12 +65,16 @@ def test_the_discount_is_declared_once():
 
 
 def test_each_algorithm_holds_only_the_sections_it_reads():
-    reads = {"her": set(), "hgg": set(), "ghgg": set(), "cher": {"tradeoff", "cher"},
-             "gchgg": {"tradeoff", "curriculum"}, "gchgg_code": {"tradeoff", "curriculum"}}  # fmt: skip
+    curriculum = {"graph", "tradeoff", "curriculum"}
+    reads = {"her": set(), "hgg": set(), "ghgg": {"graph"}, "cher": {"tradeoff", "cher"},
+             "gchgg": curriculum, "gchgg_code": curriculum}
     for algo, sections in reads.items():
         cfg = config([f"algo={algo}"])
-        assert {s for s in ("tradeoff", "curriculum", "cher") if cfg[s] is not None} == sections, algo
+        assert {s for s in ("graph", "tradeoff", "curriculum", "cher") if cfg[s] is not None} == sections, algo
         schema.check(cfg)
+    with pytest.raises(ValueError, match="a graph metric .* needs the graph section, which algo=hgg leaves out"):
+        schema.check(config(["algo=hgg", "algo.metric=graph"]))
+    schema.check(config(["algo=hgg", "algo.metric=graph", "graph=default"]))  # G-HGG by hand
 
 
 @pytest.mark.parametrize(

@@ -56,12 +56,22 @@ def tiny(tmp_path: Path, iterations: int = 1) -> list[str]:
 
 
 TINY_CHER = "cher.pool_size=64"  # CHER's pool in a run of seconds (only algo=cher has a cher section)
+EUCLIDEAN = ("algo=her", "algo=hgg", "algo=cher")  # algorithms without a graph section
+
+
+def for_algo(overrides: list[str]) -> list[str]:
+    """tiny()'s overrides fitted to the algorithm: :data:`TINY_CHER` for ``algo=cher`` (unless a pool is set),
+    no ``graph.*`` for an algorithm without a graph metric."""
+    if "algo=cher" in overrides and not any(o.startswith("cher.pool_size=") for o in overrides):
+        overrides = [*overrides, TINY_CHER]
+    if any(o in EUCLIDEAN for o in overrides) and not any(o.startswith(("algo.metric=", "graph=")) for o in overrides):
+        overrides = [o for o in overrides if not o.startswith("graph.")]
+    return overrides
 
 
 def config(overrides: list[str]):
-    """The composed config (with :data:`TINY_CHER` for ``algo=cher`` where the overrides set no pool)."""
-    if "algo=cher" in overrides and not any(o.startswith("cher.pool_size=") for o in overrides):
-        overrides = [*overrides, TINY_CHER]
+    """The composed config of ``overrides`` fitted to the algorithm (:func:`for_algo`)."""
+    overrides = for_algo(overrides)
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
         return compose("config", overrides=overrides)
 
@@ -75,8 +85,7 @@ def read_metrics(run_dir: Path) -> list[dict[str, str]]:
 @pytest.mark.parametrize("task", TASKS)
 def test_every_algo_runs_on_every_task_through_the_entry_point(task, algo, tmp_path, monkeypatch):
     run_dir = tmp_path / "run"
-    cher = [TINY_CHER] if algo == "cher" else []
-    argv = ["gchgg.train", f"env={task}", f"algo={algo}", *tiny(tmp_path, iterations=2), *cher,
+    argv = ["gchgg.train", *for_algo([f"env={task}", f"algo={algo}", *tiny(tmp_path, iterations=2)]),
             f"hydra.run.dir={run_dir}"]
     monkeypatch.setattr(sys, "argv", argv)
     train.main()
