@@ -3,7 +3,10 @@
     python -m gchgg.claims docs/results --out docs/results/claims.md [--claims docs/results/claims.yaml]
 
 Reads the runs of each claim's task from the files ``<results>/<task>/<group>-seed<N>.csv`` (every seed
-there; not ``unfinished/`` nor ``invalid/``), scores them as :mod:`gchgg.plot` does (first ≥ 0.9: a run
+there; not ``unfinished/`` nor ``invalid/``), or, for a claim with ``runs`` (a mapping of each of its
+groups to a glob under ``<results>``, e.g. Fig. 6's ablations against the default runs: ``{"500":
+fig6/eta/500-seed*.csv, gchgg: pick_no_obstacle/gchgg-seed[012].csv}``), from those files, every run
+taken as one of the claim's task (its budget); and scores them as :mod:`gchgg.plot` does (first ≥ 0.9: a run
 that never got there is censored at its budget or its end, whichever comes first, and counted one
 past it; the success rate held past a run's end) and writes a Markdown table: per
 claim the claim, the paper's figure, the measured one (IQM [95 % CI] or a probability of improvement
@@ -32,6 +35,10 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
   (:func:`gchgg.stats.paired_difference_interval`; a censored run counted one past its censoring
   iteration). Holds if its CI lies below 0 (the group reaches 0.9 earlier), contradicted if above 0,
   else undecided; undecided below ``min_pairs`` pairs (default 8).
+- ``alike`` (``than`` B, ``margin`` m): P(a run of the group reaches 0.9 in fewer iterations than a run
+  of B), as for ``faster``. Holds if its CI lies inside [0.5 − m, 0.5 + m] (neither beats the other in
+  more than 0.5 + m of the pairs), contradicted if it lies outside that band and excludes 0.5, else
+  undecided (a few runs give a wide CI: "alike" needs many).
 
 An entry with a list of ``groups`` (or of ``than``) is one claim per member; ``{name}`` and
 ``{than}`` in its ``claim`` are replaced by the display names of ``names``.
@@ -50,11 +57,11 @@ import numpy as np
 
 from gchgg import plot, stats
 
-__all__ = ["Claim", "Row", "judge", "judge_paired", "load_claims", "main", "measure", "render", "seed_files", "summary",
-           "verdicts"]
+__all__ = ["Claim", "Row", "judge", "judge_paired", "load_claims", "main", "measure", "measure_globs", "render",
+           "seed_files", "summary", "verdicts"]
 
 KINDS = {"reaches_by": ("by",), "fails": ("within",), "final": ("level", "spread"), "faster": ("than",),
-         "faster_paired": ("than", "pairs")}
+         "faster_paired": ("than", "pairs"), "alike": ("than", "margin")}
 """Each kind of claim and the fields it needs besides id, task, groups, claim and paper."""
 
 VERDICTS = ("holds", "contradicted", "undecided")
@@ -75,7 +82,9 @@ class Claim:
     level: float = math.nan
     spread: float = math.nan
     than: str = ""
+    margin: float = math.nan
     pairs: str = ""  # faster_paired: the task's subfolder of paired forks
+    runs: tuple[tuple[str, str], ...] = ()  # (group, glob under the results folder) where not <task>/<group>-seed<N>.csv
 
 
 @dataclass
@@ -120,14 +129,24 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
         if missing:
             raise ValueError(f"{where}: kind {kind} needs {', '.join(KINDS[kind])}; {', '.join(missing)} missing")
         groups, others = _as_list(entry["groups"]), _as_list(entry.get("than", ""))
+        runs = entry.get("runs") or {}
+        if not isinstance(runs, dict) or any(not isinstance(v, str) for v in runs.values()):
+            raise ValueError(f"{where}: runs {runs!r}; allowed: a mapping of each group to a glob of CSVs "
+                             "under the results folder")
+        runs = {str(k): v for k, v in runs.items()}
+        unnamed = [g for g in [*groups, *others] if g and runs and g not in runs]
+        if unnamed:
+            raise ValueError(f"{where}: runs names no glob for {', '.join(unnamed)}; a claim with runs names "
+                             "one for each of its groups and than")
         for group in groups:
             for than in others:
                 suffix = (f"-{group}" if len(groups) > 1 else "") + (f"-{than}" if len(others) > 1 else "")
-                fields = {k: float(entry[k]) for k in ("by", "within", "level", "spread") if k in entry}
+                fields = {k: float(entry[k]) for k in ("by", "within", "level", "spread", "margin") if k in entry}
                 claims.append(Claim(
                     id=f"{entry['id']}{suffix}", task=entry["task"], kind=kind, group=group, than=than,
                     claim=entry["claim"].format(name=names.get(group, group), than=names.get(than, than)),
-                    paper=entry["paper"], pairs=str(entry.get("pairs", "")), **fields))
+                    paper=entry["paper"], pairs=str(entry.get("pairs", "")),
+                    runs=tuple((g, runs[g]) for g in (group, than) if g in runs), **fields))
     if not claims:
         raise ValueError(f"{path}: no claims (a YAML mapping with a `claims` list)")
     return claims, settings
@@ -152,15 +171,31 @@ def measure(results: str | Path, task: str) -> tuple[dict[str, plot.Scores], dic
     files = seed_files(Path(results) / task)
     if not files:
         return {}, {}
-    groups = plot.group_runs([plot.load_run(p) for p in files])
+    return _measure(plot.group_runs([plot.load_run(p) for p in files]))
+
+
+def measure_globs(results: str | Path, task: str, runs: Sequence[tuple[str, str]]) -> tuple[dict, dict]:
+    """As :func:`measure`, for the runs of each ``(group, glob)`` of ``runs``: the CSVs under ``results``
+    that match the glob, each taken as a run of ``task`` (its budget) labelled ``group``."""
+    groups: dict[tuple[str, str], list[plot.Run]] = {}
+    for group, pattern in runs:
+        for path in sorted(Path(results).glob(pattern)):
+            run = plot.load_run(path)
+            run.task, run.label = task, group
+            groups.setdefault((task, group), []).append(run)
+    return _measure(groups) if groups else ({}, {})
+
+
+def _measure(groups: dict[tuple[str, str], list[plot.Run]]) -> tuple[dict, dict]:
+    """Scores and final success rates of runs grouped by (task, label), keyed by label."""
     group_scores = plot.scores(groups)
     scores, finals = {}, {}
-    for (_, label), runs in groups.items():
-        s = scores[label] = group_scores[task, label]
+    for key, runs in groups.items():
+        s = scores[key[1]] = group_scores[key]
         at_end = np.array([r.column("success_rate")[:b][-1] for r, b in zip(runs, s.budgets, strict=True)])
         stopped = sum(not c and int(r.rows[-1]["iteration"]) + 1 < b
                       for r, c, b in zip(runs, s.censored, s.budgets, strict=True))
-        finals[label] = (at_end, stopped, max(s.budgets) - 1)
+        finals[key[1]] = (at_end, stopped, max(s.budgets) - 1)
     return scores, finals
 
 
@@ -230,7 +265,7 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
                                                      "stopped by the stop rule before the budget")
             return Row(claim, text, "contradicted", f"CI below {band}")
         return Row(claim, text, "undecided", f"CI overlaps {band}")
-    # faster
+    # faster, alike
     other = scores.get(claim.than)
     if other is None:
         return Row(claim, f"{first_text}; {claim.than}: 0 runs", "undecided", few, True)
@@ -240,6 +275,14 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
             f"{mine.runs} vs {other.runs} runs")
     if few:
         return Row(claim, text, "undecided", few, True)
+    if claim.kind == "alike":
+        low, high = 0.5 - claim.margin, 0.5 + claim.margin
+        band = f"[{low:.2f}, {high:.2f}]"
+        if poi.low >= low and poi.high <= high:
+            return Row(claim, text, "holds", f"CI inside {band}")
+        if poi.low > 0.5 or poi.high < 0.5:
+            return Row(claim, text, "contradicted", f"CI outside {band}, excluding 0.5")
+        return Row(claim, text, "undecided", f"CI contains 0.5, reaches outside {band}")
     if poi.low > 0.5:
         return Row(claim, text, "holds", "CI above 0.5")
     if poi.high < 0.5:
@@ -278,9 +321,12 @@ def judge_paired(claim: Claim, results: str | Path, min_pairs: int = 8) -> Row:
 def verdicts(results: str | Path, claims: Sequence[Claim], min_runs: int = 3, slack: float = 0.1,
              min_pairs: int = 8) -> list[Row]:
     """Every claim judged on the runs under ``results`` (``<results>/<task>/``; paired forks in its subfolder)."""
-    measured = {task: measure(results, task) for task in sorted({c.task for c in claims})}
+    measured = {task: measure(results, task) for task in sorted({c.task for c in claims if not c.runs})}
+    for c in claims:
+        if c.runs and (c.task, c.runs) not in measured:
+            measured[c.task, c.runs] = measure_globs(results, c.task, c.runs)
     return [judge_paired(c, results, min_pairs) if c.kind == "faster_paired"
-            else judge(c, *measured[c.task], min_runs, slack) for c in claims]
+            else judge(c, *measured[(c.task, c.runs) if c.runs else c.task], min_runs, slack) for c in claims]
 
 
 def summary(rows: Sequence[Row]) -> list[str]:
@@ -316,7 +362,9 @@ def render(rows: Sequence[Row], command: str, min_runs: int = 3, slack: float = 
         "stratified-bootstrap interval; P(A beats B): probability of improvement, ties counted half",
         f"(`gchgg/stats.py`, rliable's definitions). Undecided below {min_runs} runs per group; \"by N\" claims hold",
         f"up to N + {100 * slack:g} %. Paired forks (`<task>/<subfolder>/`, runs paired by seed): the mean paired",
-        f"difference with a bootstrap interval over pairs, undecided below {min_pairs} pairs.",
+        f"difference with a bootstrap interval over pairs, undecided below {min_pairs} pairs. A claim whose",
+        "runs lie elsewhere (Fig. 6: `fig6/<ablation>/<value>-seed<N>.csv` against the default runs) names",
+        "their files in claims.yaml (`runs:`); each is scored under its claim's task's budget.",
         "",
         "| id | claim | paper | measured | verdict |",
         "|---|---|---|---|---|",

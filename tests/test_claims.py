@@ -155,3 +155,38 @@ claims:
     settings["min_pairs"] = 9
     rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
     assert rows["p-b"].verdict == "undecided" and rows["p-b"].reason == "8 pairs (9 needed)"
+
+
+def test_a_claim_reads_its_groups_from_the_globs_it_names_under_its_tasks_budget(tmp_path):
+    """runs: each group's CSVs from a glob (Fig. 6's ablations against the default runs elsewhere), every
+    run scored as one of the claim's task; alike: holds when P(A beats B)'s CI lies in 0.5 ± margin."""
+    for seed, at in enumerate([3, 4, 5]):
+        write_csv(tmp_path / "toy" / f"base-seed{seed}.csv", reaching(at))
+        write_csv(tmp_path / "ablation" / "slow" / f"x-seed{seed}.csv", reaching(at + 10))
+        write_csv(tmp_path / "ablation" / "same" / f"x-seed{seed}.csv", reaching(at))
+    write_csv(tmp_path / "toy" / "base-seed3.csv", reaching(19))  # left out by the glob below
+    (tmp_path / "claims.yaml").write_text("""
+names: {base: Base, "slow": Slow}
+claims:
+  - {id: f, task: toy, kind: faster, groups: [base], than: [slow, same], claim: "{name} < {than}", paper: "x",
+     runs: {base: "toy/base-seed[012].csv", slow: "ablation/slow/*.csv", same: "ablation/same/*.csv"}}
+  - {id: a, task: toy, kind: alike, groups: [base], than: [slow, same], margin: 0.25, claim: "{name} ~ {than}",
+     paper: "x", runs: {base: "toy/base-seed[012].csv", slow: "ablation/slow/*.csv", same: "ablation/same/*.csv"}}
+""")
+    loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
+    rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
+    assert rows["f-slow"].verdict == "holds" and rows["f-slow"].claim.claim == "Base < Slow"
+    assert "P(base beats slow) on first ≥ 0.9: 1.00 [1.00, 1.00]; 3 vs 3 runs" == rows["f-slow"].measured
+    assert rows["f-same"].verdict == "undecided"
+    assert (rows["a-slow"].verdict, rows["a-slow"].reason) == ("contradicted", "CI outside [0.25, 0.75], excluding 0.5")
+    assert rows["a-same"].verdict == "undecided" and rows["a-same"].reason.startswith("CI contains 0.5")
+    scores, _ = claims.measure_globs(tmp_path, "toy", [("slow", "ablation/slow/*.csv")])
+    assert scores["slow"].first.tolist() == [13, 14, 15]
+
+
+def test_a_claim_whose_runs_leave_a_group_without_a_glob_is_an_error(tmp_path):
+    path = tmp_path / "claims.yaml"
+    path.write_text("claims:\n  - {id: x, task: t, kind: faster, groups: [a], than: b, claim: c, paper: p, "
+                    "runs: {a: 'f/*.csv'}}\n")
+    with pytest.raises(ValueError, match="claim x: runs names no glob for b"):
+        claims.load_claims(path)
