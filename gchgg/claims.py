@@ -84,7 +84,7 @@ class Claim:
     than: str = ""
     margin: float = math.nan
     pairs: str = ""  # faster_paired: the task's subfolder of paired forks
-    runs: tuple[tuple[str, str], ...] = ()  # (group, glob under the results folder) where not <task>/<group>-seed<N>.csv
+    runs: tuple[tuple[str, str], ...] = ()  # (group, glob under results) instead of <task>/<group>-seed<N>.csv
 
 
 @dataclass
