@@ -410,7 +410,9 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
     """Per task holding both groups: the runs of ``first`` (A) and ``second`` (B) paired by seed, a line
     per pair (HGG stop and first ≥ 0.9 of each, censored ones marked ``>``, and A − B), then per score
     the mean paired difference A − B with its 95 % interval and how many pairs A was ahead (fewer
-    iterations), level and behind in. Runs without a partner are named and left out."""
+    iterations), level and behind in, and below it the same runs' difference taken unpaired (the two
+    groups resampled apart) with the partners' Pearson correlation: pairing narrows the interval only
+    where partners correlate. Runs without a partner are named and left out."""
     labels = {label for _, label in groups}
     for name in (first, second):
         if name not in labels:
@@ -451,6 +453,12 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
             pairs = f"{estimate.runs} pair{'s' * (estimate.runs != 1)}"
             lines.append(f"  {name}, A - B over {pairs}: mean {estimate.format(1)}; A ahead in {ahead}, "
                          f"level in {estimate.runs - ahead - behind}, behind in {behind}")
+            if estimate.runs > 1:  # did pairing remove noise? the partners' correlation, and the runs unpaired
+                apart = stats.unpaired_difference_interval(a_values, b_values, rng=rng)
+                spread = a_values.std() * b_values.std()
+                r = f"{np.mean((a_values - a_values.mean()) * (b_values - b_values.mean())) / spread:.2f}" if spread \
+                    else "undefined (a constant score)"
+                lines.append(f"    the same runs unpaired: {apart.format(1)}; partners' correlation r = {r}")
     return lines
 
 

@@ -318,6 +318,9 @@ def test_pairs_match_runs_by_seed_and_give_paired_differences(tmp_path, capsys):
     # first >= 0.9: -2, +2, 0 -> mean 0; HGG stop: -1, 0, -1 -> mean -0.67
     assert "first >= 0.9, A - B over 3 pairs: mean 0.0 [" in out and "A ahead in 1, level in 1, behind in 1" in out
     assert "HGG stop, A - B over 3 pairs: mean -0.7 [-1.0, 0.0]; A ahead in 2, level in 1, behind in 0" in out
+    # A's first >= 0.9: 6, 9, 7 and B's 8, 7, 7, centred -4/3, 5/3, -1/3 and 2/3, -1/3, -1/3:
+    # r = (-4/3) / sqrt(14/3 * 2/3) = -0.756
+    assert "    the same runs unpaired: 0.0 [" in out and "partners' correlation r = -0.76" in out
     with pytest.raises(SystemExit):
         plot.main([str(folder), "--pairs", "gchgg", "cher"])
 

@@ -146,3 +146,14 @@ def test_the_poi_interval_resamples_each_group_independently():
     assert (estimate.runs, estimate.other_runs) == (3, 4)
     assert estimate.low <= estimate.point <= estimate.high
     assert stats.poi_interval([1, 2], [5, 6], lower_is_better=True).format() == "1.00 [1.00, 1.00]"
+
+
+def test_the_unpaired_interval_resamples_the_groups_apart():
+    """Partners that move together: the paired interval is a point, the unpaired one is wide."""
+    x, y = [10.0, 20.0, 30.0, 40.0], [12.0, 22.0, 32.0, 42.0]
+    paired = stats.paired_difference_interval(x, y, rng=np.random.default_rng(0))
+    apart = stats.unpaired_difference_interval(x, y, rng=np.random.default_rng(0))
+    assert (paired.point, paired.low, paired.high) == (-2.0, -2.0, -2.0)
+    assert apart.point == -2.0 and apart.low < -10 and apart.high > 6 and (apart.runs, apart.other_runs) == (4, 4)
+    with pytest.raises(ValueError, match="scores must be finite"):
+        stats.unpaired_difference_interval([1.0, np.inf], [1.0])
