@@ -409,6 +409,7 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
            rng: np.random.Generator | None = None) -> list[str]:
     """Per task holding both groups: the runs of ``first`` (A) and ``second`` (B) paired by seed, a line
     per pair (HGG stop and first ≥ 0.9 of each, censored ones marked ``>``, and A − B), then per score
+    (the HGG stop, first ≥ 0.9, and the AUC over the pairs' common range, :func:`auc_range`)
     the mean paired difference A − B with its 95 % interval and how many pairs A was ahead (fewer
     iterations), level and behind in, and below it the same runs' difference taken unpaired (the two
     groups resampled apart) with the partners' Pearson correlation: pairing narrows the interval only
@@ -425,19 +426,22 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
         by_seed = []
         for label in (first, second):
             runs, score = groups[task, label], pair_scores[task, label]
-            by_seed.append({seed_of(r): (r, score.first[i], score.censored[i]) for i, r in enumerate(runs)})
+            by_seed.append({seed_of(r): (r, score.first[i], score.censored[i], score.auc[i])
+                            for i, r in enumerate(runs)})
         seeds = sorted(set(by_seed[0]) & set(by_seed[1]) - {None})
         alone = sorted(str(s) for s in set(by_seed[0]) ^ set(by_seed[1]))
         lines.append(f"{task}: {len(seeds)} pair{'s' * (len(seeds) != 1)} of {first} (A) and {second} (B) by seed"
                      + (f"; without a partner: seed {', '.join(alone)}" if alone else ""))
         if not seeds:
             continue
-        columns = {"HGG stop": [], f"first >= {THRESHOLD}": []}
+        auc_name = f"AUC over iterations 0-{pair_scores[task, first].auc_range - 1}"
+        columns = {"HGG stop": [], f"first >= {THRESHOLD}": [], auc_name: []}
         for seed in seeds:
-            (a, a_first, a_cens), (b, b_first, b_cens) = by_seed[0][seed], by_seed[1][seed]
+            (a, a_first, a_cens, a_auc), (b, b_first, b_cens, b_auc) = by_seed[0][seed], by_seed[1][seed]
             stops = [first_at(r, 1.0, "stopped") for r in (a, b)]
             columns["HGG stop"].append(stops)
             columns[f"first >= {THRESHOLD}"].append([a_first, b_first])
+            columns[auc_name].append([a_auc, b_auc])
             first_text = [f"{'>' if c else ''}{v:g}" for v, c in ((a_first, a_cens), (b_first, b_cens))]
             lines.append(f"  seed {seed}: HGG stop A {stops[0]:g}, B {stops[1]:g} (A - B {stops[0] - stops[1]:g}); "
                          f"first >= {THRESHOLD} A {first_text[0]}, B {first_text[1]} (A - B {a_first - b_first:g})")
@@ -448,17 +452,20 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
                 lines.append(f"  {name}: no pair where both runs have one")
                 continue
             a_values, b_values = values[finite, 0], values[finite, 1]
+            digits = 3 if name == auc_name else 1
             estimate = stats.paired_difference_interval(a_values, b_values, rng=rng)
-            ahead, behind = int((a_values < b_values).sum()), int((a_values > b_values).sum())
+            better = a_values > b_values if name == auc_name else a_values < b_values  # the AUC: higher is ahead
+            worse = a_values < b_values if name == auc_name else a_values > b_values
+            ahead, behind = int(better.sum()), int(worse.sum())
             pairs = f"{estimate.runs} pair{'s' * (estimate.runs != 1)}"
-            lines.append(f"  {name}, A - B over {pairs}: mean {estimate.format(1)}; A ahead in {ahead}, "
+            lines.append(f"  {name}, A - B over {pairs}: mean {estimate.format(digits)}; A ahead in {ahead}, "
                          f"level in {estimate.runs - ahead - behind}, behind in {behind}")
             if estimate.runs > 1:  # did pairing remove noise? the partners' correlation, and the runs unpaired
                 apart = stats.unpaired_difference_interval(a_values, b_values, rng=rng)
                 spread = a_values.std() * b_values.std()
                 r = f"{np.mean((a_values - a_values.mean()) * (b_values - b_values.mean())) / spread:.2f}" if spread \
                     else "undefined (a constant score)"
-                lines.append(f"    the same runs unpaired: {apart.format(1)}; partners' correlation r = {r}")
+                lines.append(f"    the same runs unpaired: {apart.format(digits)}; partners' correlation r = {r}")
     return lines
 
 
