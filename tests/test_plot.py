@@ -322,7 +322,7 @@ def test_pairs_match_runs_by_seed_and_give_paired_differences(tmp_path, capsys):
     # r = (-4/3) / sqrt(14/3 * 2/3) = -0.756
     assert "    the same runs unpaired: 0.0 [" in out and "partners' correlation r = -0.76" in out
     # AUC over iterations 0-11 (the budget): 0.9 from first >= 0.9 on, A 0.9 * (6, 3, 5) / 12, B 0.9 * (4, 5, 5) / 12;
-    # A - B = 0.15, -0.15, 0: a third of the resamples are all -0.15 or all 0.15, so the CI is the extremes
+    # A - B = 0.15, -0.15, 0: a resample of all -0.15 (or all 0.15) has probability 1/27 > 2.5 %: the CI is the extremes
     assert ("AUC over iterations 0-11, A - B over 3 pairs: mean 0.000 [-0.150, 0.150]; A ahead in 1, level in 1, "
             "behind in 1") in out
     with pytest.raises(SystemExit):
