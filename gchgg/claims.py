@@ -35,6 +35,11 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
   (:func:`gchgg.stats.paired_difference_interval`; a censored run counted one past its censoring
   iteration). Holds if its CI lies below 0 (the group reaches 0.9 earlier), contradicted if above 0,
   else undecided; undecided below ``min_pairs`` pairs (default 8).
+- ``score: auc`` (``faster``, ``faster_paired``, ``alike``): the same rules on the area under the
+  evaluation-success curve (the mean success over iterations 0 … R − 1, R the two groups' common
+  range, :func:`gchgg.plot.auc_range`; higher is better) instead of first ≥ 0.9: the threshold's first
+  crossing is noisy where a curve hovers near 0.9, the area weighs the whole curve. Default
+  ``score: first``.
 - ``alike`` (``than`` B, ``margin`` m): P(a run of the group reaches 0.9 in fewer iterations than a run
   of B), as for ``faster``. Holds if its CI lies inside [0.5 − m, 0.5 + m] (neither beats the other in
   more than 0.5 + m of the pairs), contradicted if it lies outside that band and excludes 0.5, else
@@ -65,6 +70,8 @@ KINDS = {"reaches_by": ("by",), "fails": ("within",), "final": ("level", "spread
 """Each kind of claim and the fields it needs besides id, task, groups, claim and paper."""
 
 VERDICTS = ("holds", "contradicted", "undecided")
+SCORES = ("first", "auc")
+"""What a comparison reads: first ≥ 0.9 (fewer iterations is better) or the AUC (higher is better)."""
 
 
 @dataclass
@@ -84,6 +91,7 @@ class Claim:
     than: str = ""
     margin: float = math.nan
     pairs: str = ""  # faster_paired: the task's subfolder of paired forks
+    score: str = "first"  # faster, faster_paired, alike: "first" (first >= 0.9) or "auc"
     runs: tuple[tuple[str, str], ...] = ()  # (group, glob under results) instead of <task>/<group>-seed<N>.csv
 
 
@@ -128,6 +136,10 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
         missing = [k for k in KINDS[kind] if k not in entry]
         if missing:
             raise ValueError(f"{where}: kind {kind} needs {', '.join(KINDS[kind])}; {', '.join(missing)} missing")
+        score = entry.get("score", "first")
+        if score not in SCORES or (score != "first" and kind not in ("faster", "faster_paired", "alike")):
+            raise ValueError(f"{where}: score {score!r} with kind {kind}; allowed: {', '.join(SCORES)} with faster, "
+                             "faster_paired and alike, first with the other kinds")
         groups, others = _as_list(entry["groups"]), _as_list(entry.get("than", ""))
         runs = entry.get("runs") or {}
         if not isinstance(runs, dict) or any(not isinstance(v, str) for v in runs.values()):
@@ -145,7 +157,7 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
                 claims.append(Claim(
                     id=f"{entry['id']}{suffix}", task=entry["task"], kind=kind, group=group, than=than,
                     claim=entry["claim"].format(name=names.get(group, group), than=names.get(than, than)),
-                    paper=entry["paper"], pairs=str(entry.get("pairs", "")),
+                    paper=entry["paper"], pairs=str(entry.get("pairs", "")), score=score,
                     runs=tuple((g, runs[g]) for g in (group, than) if g in runs), **fields))
     if not claims:
         raise ValueError(f"{path}: no claims (a YAML mapping with a `claims` list)")
@@ -168,22 +180,30 @@ def measure(results: str | Path, task: str) -> tuple[dict[str, plot.Scores], dic
     AUC's range common to all the task's groups), and each run's success rate at the last iteration of
     its budget (held past its end) with how many runs stopped early by the stop rule (reached 0.9 and
     ended before their budget) and the budget's last iteration. Empty if there are no such files."""
-    files = seed_files(Path(results) / task)
-    if not files:
-        return {}, {}
-    return _measure(plot.group_runs([plot.load_run(p) for p in files]))
+    groups = _task_runs(results, task)
+    return _measure(groups) if groups else ({}, {})
 
 
 def measure_globs(results: str | Path, task: str, runs: Sequence[tuple[str, str]]) -> tuple[dict, dict]:
     """As :func:`measure`, for the runs of each ``(group, glob)`` of ``runs``: the CSVs under ``results``
     that match the glob, each taken as a run of ``task`` (its budget) labelled ``group``."""
+    groups = _glob_runs(results, task, runs)
+    return _measure(groups) if groups else ({}, {})
+
+
+def _task_runs(results: str | Path, task: str) -> dict[tuple[str, str], list[plot.Run]]:
+    files = seed_files(Path(results) / task)
+    return plot.group_runs([plot.load_run(p) for p in files]) if files else {}
+
+
+def _glob_runs(results: str | Path, task: str, runs: Sequence[tuple[str, str]]) -> dict[tuple[str, str], list]:
     groups: dict[tuple[str, str], list[plot.Run]] = {}
     for group, pattern in runs:
         for path in sorted(Path(results).glob(pattern)):
             run = plot.load_run(path)
             run.task, run.label = task, group
             groups.setdefault((task, group), []).append(run)
-    return _measure(groups) if groups else ({}, {})
+    return groups
 
 
 def _measure(groups: dict[tuple[str, str], list[plot.Run]]) -> tuple[dict, dict]:
@@ -269,10 +289,14 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     other = scores.get(claim.than)
     if other is None:
         return Row(claim, f"{first_text}; {claim.than}: 0 runs", "undecided", few, True)
-    poi = stats.poi_interval(mine.first_bound, other.first_bound, lower_is_better=True, x_censored=mine.censored,
-                             y_censored=other.censored)
-    text = (f"P({claim.group} beats {claim.than}) on first ≥ {plot.THRESHOLD}: {poi.format(2)}; "
-            f"{mine.runs} vs {other.runs} runs")
+    if claim.score == "auc":
+        poi = stats.poi_interval(mine.auc, other.auc)
+        on = f"AUC over iterations 0–{mine.auc_range - 1}"
+    else:
+        poi = stats.poi_interval(mine.first_bound, other.first_bound, lower_is_better=True,
+                                 x_censored=mine.censored, y_censored=other.censored)
+        on = f"first ≥ {plot.THRESHOLD}"
+    text = f"P({claim.group} beats {claim.than}) on {on}: {poi.format(2)}; {mine.runs} vs {other.runs} runs"
     if few:
         return Row(claim, text, "undecided", few, True)
     if claim.kind == "alike":
@@ -298,35 +322,50 @@ def judge_paired(claim: Claim, results: str | Path, min_pairs: int = 8) -> Row:
     if claim.group not in task_groups or claim.than not in task_groups:
         return Row(claim, "—; 0 pairs", "undecided", f"0 pairs ({min_pairs} needed)", True)
     group_scores = plot.scores({key: runs for key, runs in groups.items() if key[1] in (claim.group, claim.than)})
-    first = {}
+    auc = claim.score == "auc"
+    value = {}
     for (_, label), score in group_scores.items():
         runs = task_groups[label]
-        first[label] = {plot.seed_of(r): score.first[i] for i, r in enumerate(runs)}
-    seeds = sorted(set(first[claim.group]) & set(first[claim.than]) - {None})
+        value[label] = {plot.seed_of(r): (score.auc if auc else score.first)[i] for i, r in enumerate(runs)}
+    seeds = sorted(set(value[claim.group]) & set(value[claim.than]) - {None})
     if not seeds:
         return Row(claim, "—; 0 pairs", "undecided", f"0 pairs ({min_pairs} needed)", True)
-    difference = stats.paired_difference_interval([first[claim.group][k] for k in seeds],
-                                                  [first[claim.than][k] for k in seeds])
-    text = (f"{claim.group} − {claim.than} on first ≥ {plot.THRESHOLD}, paired forks: mean {difference.format(1)}; "
+    difference = stats.paired_difference_interval([value[claim.group][k] for k in seeds],
+                                                  [value[claim.than][k] for k in seeds])
+    on = (f"AUC over iterations 0–{next(iter(group_scores.values())).auc_range - 1}" if auc
+          else f"first ≥ {plot.THRESHOLD}")
+    text = (f"{claim.group} − {claim.than} on {on}, paired forks: mean {difference.format(3 if auc else 1)}; "
             f"{difference.runs} pair{'s' * (difference.runs != 1)}")
     if difference.runs < min_pairs:
         return Row(claim, text, "undecided", f"{difference.runs} pairs ({min_pairs} needed)", True)
-    if difference.high < 0:
-        return Row(claim, text, "holds", "CI below 0")
-    if difference.low > 0:
-        return Row(claim, text, "contradicted", "CI above 0")
+    sooner, later = (difference.low > 0, difference.high < 0) if auc else (difference.high < 0, difference.low > 0)
+    if sooner:
+        return Row(claim, text, "holds", "CI above 0" if auc else "CI below 0")
+    if later:
+        return Row(claim, text, "contradicted", "CI below 0" if auc else "CI above 0")
     return Row(claim, text, "undecided", "CI contains 0")
 
 
 def verdicts(results: str | Path, claims: Sequence[Claim], min_runs: int = 3, slack: float = 0.1,
              min_pairs: int = 8) -> list[Row]:
     """Every claim judged on the runs under ``results`` (``<results>/<task>/``; paired forks in its subfolder)."""
-    measured = {task: measure(results, task) for task in sorted({c.task for c in claims if not c.runs})}
+    loaded: dict = {}
+    measured: dict = {}
+    rows = []
     for c in claims:
-        if c.runs and (c.task, c.runs) not in measured:
-            measured[c.task, c.runs] = measure_globs(results, c.task, c.runs)
-    return [judge_paired(c, results, min_pairs) if c.kind == "faster_paired"
-            else judge(c, *measured[(c.task, c.runs) if c.runs else c.task], min_runs, slack) for c in claims]
+        if c.kind == "faster_paired":
+            rows.append(judge_paired(c, results, min_pairs))
+            continue
+        key = (c.task, c.runs) if c.runs else c.task
+        if key not in loaded:
+            loaded[key] = _glob_runs(results, c.task, c.runs) if c.runs else _task_runs(results, c.task)
+            measured[key] = _measure(loaded[key]) if loaded[key] else ({}, {})
+        scores, finals = measured[key]
+        if c.score == "auc":  # the AUC over the two groups' own common range, as gchgg.plot --compare reads it
+            pair = {k: runs for k, runs in loaded[key].items() if k[1] in (c.group, c.than)}
+            scores = {label: s for (_, label), s in plot.scores(pair).items()} if pair else {}
+        rows.append(judge(c, scores, finals, min_runs, slack))
+    return rows
 
 
 def summary(rows: Sequence[Row]) -> list[str]:

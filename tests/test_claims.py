@@ -190,3 +190,39 @@ def test_a_claim_whose_runs_leave_a_group_without_a_glob_is_an_error(tmp_path):
                     "runs: {a: 'f/*.csv'}}\n")
     with pytest.raises(ValueError, match="claim x: runs names no glob for b"):
         claims.load_claims(path)
+
+
+def test_score_auc_compares_the_areas_under_the_curves(tmp_path):
+    """score: auc reads the mean success over the groups' common range (higher is better): a group that
+    crosses 0.9 later but holds a higher level before it wins on the area and loses on first >= 0.9."""
+    toy, forks = tmp_path / "toy", tmp_path / "toy" / "forks"
+    for seed in range(8):
+        early = [0.0] * (4 + seed % 2) + [0.9] * 15  # first >= 0.9 at 4 or 5, then 0.9
+        high = [0.85] * (6 + seed % 2) + [0.95] * 13  # 0.85 from the start, first >= 0.9 at 6 or 7
+        for folder in (toy, forks):
+            write_csv(folder / f"early-seed{seed}.csv", early)
+            write_csv(folder / f"high-seed{seed}.csv", high)
+    (tmp_path / "claims.yaml").write_text("""
+min_pairs: 8
+claims:
+  - {id: f, task: toy, kind: faster, groups: [high], than: early, claim: "c", paper: "x"}
+  - {id: a, task: toy, kind: faster, groups: [high], than: early, score: auc, claim: "c", paper: "x"}
+  - {id: pf, task: toy, kind: faster_paired, groups: [high], than: early, pairs: forks, claim: "c", paper: "x"}
+  - {id: pa, task: toy, kind: faster_paired, groups: [high], than: early, pairs: forks, score: auc, claim: "c",
+     paper: "x"}
+""")
+    loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
+    rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
+    assert (rows["f"].verdict, rows["a"].verdict) == ("contradicted", "holds")
+    assert rows["a"].measured == "P(high beats early) on AUC over iterations 0–19: 1.00 [1.00, 1.00]; 8 vs 8 runs"
+    assert (rows["pf"].verdict, rows["pa"].verdict) == ("contradicted", "holds")
+    assert rows["pa"].reason == "CI above 0"
+    assert "on AUC over iterations 0–19, paired forks: mean " in rows["pa"].measured
+
+
+def test_score_auc_is_refused_where_a_kind_reads_one_group(tmp_path):
+    path = tmp_path / "claims.yaml"
+    path.write_text("claims:\n  - {id: x, task: t, kind: reaches_by, by: 5, score: auc, groups: [a], claim: c, "
+                    "paper: p}\n")
+    with pytest.raises(ValueError, match="claim x: score 'auc' with kind reaches_by; allowed: first, auc with faster"):
+        claims.load_claims(path)
