@@ -412,8 +412,9 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
     (the HGG stop, first ≥ 0.9, and the AUC over the pairs' common range, :func:`auc_range`)
     the mean paired difference A − B with its 95 % interval and how many pairs A was ahead (fewer
     iterations), level and behind in, and below it the same runs' difference taken unpaired (the two
-    groups resampled apart) with the partners' Pearson correlation: pairing narrows the interval only
-    where partners correlate. Runs without a partner are named and left out."""
+    groups resampled apart) with the partners' Pearson correlation (pairing narrows the interval only
+    where partners correlate) and the small-sample tests of :func:`gchgg.stats.paired_tests`. Runs
+    without a partner are named and left out."""
     labels = {label for _, label in groups}
     for name in (first, second):
         if name not in labels:
@@ -465,7 +466,9 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
                 spread = a_values.std() * b_values.std()
                 r = f"{np.mean((a_values - a_values.mean()) * (b_values - b_values.mean())) / spread:.2f}" if spread \
                     else "undefined (a constant score)"
-                lines.append(f"    the same runs unpaired: {apart.format(digits)}; partners' correlation r = {r}")
+                t, w = stats.paired_tests(a_values, b_values)
+                lines.append(f"    the same runs unpaired: {apart.format(digits)}; partners' correlation r = {r}; "
+                             f"paired t-test p = {t:.3f}, Wilcoxon signed-rank p = {w:.3f}")
     return lines
 
 

@@ -320,7 +320,11 @@ def test_pairs_match_runs_by_seed_and_give_paired_differences(tmp_path, capsys):
     assert "HGG stop, A - B over 3 pairs: mean -0.7 [-1.0, 0.0]; A ahead in 2, level in 1, behind in 0" in out
     # A's first >= 0.9: 6, 9, 7 and B's 8, 7, 7, centred -4/3, 5/3, -1/3 and 2/3, -1/3, -1/3:
     # r = (-4/3) / sqrt(14/3 * 2/3) = -0.756
-    assert "    the same runs unpaired: 0.0 [" in out and "partners' correlation r = -0.76" in out
+    assert "    the same runs unpaired: 0.0 [" in out
+    assert "partners' correlation r = -0.76; paired t-test p = 1.000" in out  # mean difference 0
+    # HGG stop: -1, 0, -1: t = -2 with 2 degrees of freedom, two-sided p = 1 - 2 / sqrt(6)
+    # Wilcoxon drops the 0: [-1, -1], both negative, exact p = 2 / 2**2
+    assert f"paired t-test p = {1 - 2 / 6 ** 0.5:.3f}, Wilcoxon signed-rank p = 0.500" in out
     # AUC over iterations 0-11 (the budget): 0.9 from first >= 0.9 on, A 0.9 * (6, 3, 5) / 12, B 0.9 * (4, 5, 5) / 12;
     # A - B = 0.15, -0.15, 0: a resample of all -0.15 (or all 0.15) has probability 1/27 > 2.5 %: the CI is the extremes
     assert ("AUC over iterations 0-11, A - B over 3 pairs: mean 0.000 [-0.150, 0.150]; A ahead in 1, level in 1, "

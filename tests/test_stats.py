@@ -157,3 +157,13 @@ def test_the_unpaired_interval_resamples_the_groups_apart():
     assert apart.point == -2.0 and apart.low < -10 and apart.high > 6 and (apart.runs, apart.other_runs) == (4, 4)
     with pytest.raises(ValueError, match="scores must be finite"):
         stats.unpaired_difference_interval([1.0, np.inf], [1.0])
+
+
+def test_paired_tests_give_the_t_and_signed_rank_p_values():
+    # -4, -2, -1, -5: mean -3, s = sqrt(10 / 3), t = -3 / (s / 2) with 3 degrees of freedom; all four
+    # negative: the exact signed-rank p is 2 / 2**4
+    t, w = stats.paired_tests([80, 75, 90, 70], [84, 77, 91, 75])
+    assert t == pytest.approx(2 * scipy.stats.t.sf(3 / (np.sqrt(10 / 3) / 2), 3)) and w == 2 / 16
+    assert all(np.isnan(stats.paired_tests([1.0], [0.0])))  # one pair: neither test is defined
+    t, w = stats.paired_tests([1.0, 2.0], [1.0, 2.0])  # no difference at all
+    assert np.isnan(t) and np.isnan(w)
