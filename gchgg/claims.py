@@ -33,8 +33,10 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
 - ``faster_paired`` (``than`` B, ``pairs`` F): paired forks (:mod:`gchgg.fork`) in ``<results>/<task>/F/``,
   the group's and B's runs paired by seed: the mean paired difference group − B of first ≥ 0.9
   (:func:`gchgg.stats.paired_difference_interval`; a censored run counted one past its censoring
-  iteration). Holds if its CI lies below 0 (the group reaches 0.9 earlier), contradicted if above 0,
-  else undecided; undecided below ``min_pairs`` pairs (default 8).
+  iteration; the measured figure adds the paired t-test's p, a check on a bootstrap interval that is
+  too narrow with few pairs, which the verdict does not read). Holds if its CI lies below 0 (the group
+  reaches 0.9 earlier), contradicted if above 0, else undecided; undecided below ``min_pairs`` pairs
+  (default 8).
 - ``score: auc`` (``faster``, ``faster_paired``, ``alike``): the same rules on the area under the
   evaluation-success curve (the mean success over iterations 0 … R − 1, R the two groups' common
   range, :func:`gchgg.plot.auc_range`; higher is better) instead of first ≥ 0.9: the threshold's first
@@ -334,8 +336,9 @@ def judge_paired(claim: Claim, results: str | Path, min_pairs: int = 8) -> Row:
                                                   [value[claim.than][k] for k in seeds])
     on = (f"AUC over iterations 0–{next(iter(group_scores.values())).auc_range - 1}" if auc
           else f"first ≥ {plot.THRESHOLD}")
+    t_test, _ = stats.paired_tests([value[claim.group][k] for k in seeds], [value[claim.than][k] for k in seeds])
     text = (f"{claim.group} − {claim.than} on {on}, paired forks: mean {difference.format(3 if auc else 1)}; "
-            f"{difference.runs} pair{'s' * (difference.runs != 1)}")
+            f"{difference.runs} pair{'s' * (difference.runs != 1)}; paired t-test p = {t_test:.2f}")
     if difference.runs < min_pairs:
         return Row(claim, text, "undecided", f"{difference.runs} pairs ({min_pairs} needed)", True)
     sooner, later = (difference.low > 0, difference.high < 0) if auc else (difference.high < 0, difference.low > 0)
