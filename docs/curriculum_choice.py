@@ -57,6 +57,7 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer  # noqa: E402
 import envs  # noqa: E402
 from gchgg import replay_log  # noqa: E402
 from gchgg.builders import make_metric, make_sampler  # noqa: E402
+from gchgg.config import CurriculumConfig, GraphConfig  # noqa: E402
 
 STATS = ("own goal", "reward 0", "reward 0 (own goal)", "goal > 2 cm up", "goal > 10 cm up", "reward 0, goal > 2 cm up",
          "goal to target")
@@ -107,12 +108,24 @@ def batch_stats(batch, start_height: float | None) -> dict[str, float]:
     return stats
 
 
-def draw(storage, cfg, metric, candidates: int, tradeoff: float, samples: int, seed: int, start_height):
-    """Mean and per-batch values of the statistics over ``samples`` batches of a sampler with ``candidates``."""
-    c = cfg.curriculum
+def curriculum_of(cfg):
+    """The run's curriculum settings, or ``algo=gchgg``'s for a run without a curriculum (HER, HGG, G-HGG)."""
+    if cfg.get("curriculum") is not None:
+        return cfg.curriculum
+    default = CurriculumConfig()
+    return OmegaConf.create({"num_candidates": default.num_candidates, "proximity": default.proximity,
+                             "diversity_of": default.diversity_of, "diversity_metric": cfg.algo.metric,
+                             "scale": default.scale})
+
+
+def draw(storage, cfg, metric, candidates: int, tradeoff: float, samples: int, seed: int, start_height,
+         diversity_metric=None):
+    """Mean and per-batch values of the statistics over ``samples`` batches of a sampler with ``candidates``
+    (F_div under ``diversity_metric``, ``None``: ``metric``)."""
+    c = curriculum_of(cfg)
     sampler = make_sampler(
         "curriculum", metric, tradeoff, num_candidates=candidates, proximity=c.proximity,
-        diversity_of=c.diversity_of, scale=c.get("scale", "raw"),
+        diversity_of=c.diversity_of, diversity_metric=diversity_metric, scale=c.get("scale", "raw"),
     )  # fmt: skip
     buffer = TensorDictReplayBuffer(
         storage=storage, sampler=sampler, batch_size=cfg.train.batch_size, generator=torch.Generator().manual_seed(seed)
@@ -144,13 +157,19 @@ def main() -> None:
     cfg = OmegaConf.load(args.run / "config.yaml")
     geometry = envs.geometry(cfg.env.name)
     start_height = None if geometry.object_range is None else float(geometry.object_range.center[2])
-    g = cfg.get("graph")
-    metric = make_metric("euclidean") if cfg.algo.metric != "graph" else make_metric(
-        "graph", geometry.field, geometry.obstacles, n=tuple(g.n), margin=g.margin, snap=g.snap,
-        cache_dir=g.cache_dir,
-    )
+    g = cfg.get("graph") or OmegaConf.structured(GraphConfig)  # a run with a Euclidean metric saved no graph
+
+    def metric_of(kind: str):
+        if kind != "graph":
+            return make_metric(kind)
+        return make_metric(kind, geometry.field, geometry.obstacles, n=tuple(g.n), margin=g.margin, snap=g.snap,
+                           cache_dir=g.cache_dir)
+
+    metric = metric_of(cfg.algo.metric)
+    c = curriculum_of(cfg)
+    diversity_metric = metric_of(c.diversity_metric) if c.diversity_metric != cfg.algo.metric else None
     capacity = cfg.buffer.episodes * (cfg.her.k + 1) * geometry.episode_length
-    candidates = cfg.curriculum.num_candidates
+    candidates = c.num_candidates
     best = torch.randn(100_000, candidates, generator=torch.Generator().manual_seed(0)).amax(1).mean().item()
     lines = [
         f"`{'/'.join(args.run.parts[-3:])}` ({cfg.env.name}, algo={cfg.algo.name}, metric={cfg.algo.metric}): "
@@ -167,8 +186,9 @@ def main() -> None:
         if tradeoff is None:
             raise SystemExit(f"{args.run / 'metrics.csv'} has no lambda at iteration {iteration}: pass --tradeoff")
         storage = load_buffer(args.run, iteration, capacity)
-        ebp = draw(storage, cfg, metric, 1, tradeoff, args.samples, args.seed, start_height)
-        chosen = draw(storage, cfg, metric, candidates, tradeoff, args.samples, args.seed + 1, start_height)
+        ebp = draw(storage, cfg, metric, 1, tradeoff, args.samples, args.seed, start_height, diversity_metric)
+        chosen = draw(storage, cfg, metric, candidates, tradeoff, args.samples, args.seed + 1, start_height,
+                      diversity_metric)
         for key in ebp:
             a, b = ebp[key][~ebp[key].isnan()], chosen[key][~chosen[key].isnan()]
             se = math.sqrt(a.var().item() / len(a) + b.var().item() / len(b))

@@ -47,7 +47,7 @@ from torchrl.data import TensorDictReplayBuffer  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg.builders import make_metric, make_sampler, make_tradeoff  # noqa: E402
-from gchgg.config import GraphConfig  # noqa: E402
+from gchgg.config import CurriculumConfig, GraphConfig  # noqa: E402
 
 DEFAULT = {"eta": 1000.0, "sigma": 0.3}
 SETTINGS = (  # (sweep, value, η, σ, metric); the default of every sweep first
@@ -79,7 +79,9 @@ def draws(storage, metric, tradeoff: float, candidates: int, samples: int, batch
           scale: str = "raw"):
     """Goal-to-target means ``[samples]`` and diversity-decided flags of ``samples`` batches of the
     default GC-HGG curriculum sampler with ``candidates`` (1: EBP) at λ = ``tradeoff``."""
-    sampler = make_sampler("curriculum", metric, tradeoff, num_candidates=candidates, scale=scale)
+    default = CurriculumConfig()  # algo=gchgg's curriculum: eq. 15 proximity to T*, eq. 19 diversity of the goals
+    sampler = make_sampler("curriculum", metric, tradeoff, num_candidates=candidates, proximity=default.proximity,
+                           diversity_of=default.diversity_of, diversity_metric=None, scale=scale)
     sampler.draw_ahead = max(1, min(sampler.draw_ahead, 4096 // candidates))  # bounded scratch at K = 512
     buffer = TensorDictReplayBuffer(storage=storage, sampler=sampler, batch_size=batch,
                                     generator=torch.Generator().manual_seed(seed))
