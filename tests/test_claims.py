@@ -184,14 +184,6 @@ claims:
     assert scores["slow"].first.tolist() == [13, 14, 15]
 
 
-def test_a_claim_whose_runs_leave_a_group_without_a_glob_is_an_error(tmp_path):
-    path = tmp_path / "claims.yaml"
-    path.write_text("claims:\n  - {id: x, task: t, kind: faster, groups: [a], than: b, claim: c, paper: p, "
-                    "runs: {a: 'f/*.csv'}}\n")
-    with pytest.raises(ValueError, match="claim x: runs names no glob for b"):
-        claims.load_claims(path)
-
-
 def test_score_auc_compares_the_areas_under_the_curves(tmp_path):
     """score: auc reads the mean success over the groups' common range (higher is better): a group that
     crosses 0.9 later but holds a higher level before it wins on the area and loses on first >= 0.9."""
@@ -220,9 +212,14 @@ claims:
     assert "on AUC over iterations 0–19, paired forks: mean " in rows["pa"].measured
 
 
-def test_score_auc_is_refused_where_a_kind_reads_one_group(tmp_path):
+@pytest.mark.parametrize("entry, message", [
+    ("{id: x, task: t, kind: faster, groups: [a], than: b, claim: c, paper: p, runs: {a: 'f/*.csv'}}",
+     "claim x: runs names no glob for b"),
+    ("{id: x, task: t, kind: reaches_by, by: 5, score: auc, groups: [a], claim: c, paper: p}",
+     "claim x: score 'auc' with kind reaches_by; allowed: first, auc with faster"),
+])
+def test_a_claim_with_runs_missing_a_group_or_a_score_its_kind_cannot_read_is_an_error(tmp_path, entry, message):
     path = tmp_path / "claims.yaml"
-    path.write_text("claims:\n  - {id: x, task: t, kind: reaches_by, by: 5, score: auc, groups: [a], claim: c, "
-                    "paper: p}\n")
-    with pytest.raises(ValueError, match="claim x: score 'auc' with kind reaches_by; allowed: first, auc with faster"):
+    path.write_text(f"claims:\n  - {entry}\n")
+    with pytest.raises(ValueError, match=message):
         claims.load_claims(path)
