@@ -332,11 +332,11 @@ def judge_paired(claim: Claim, results: str | Path, min_pairs: int = 8) -> Row:
     seeds = sorted(set(value[claim.group]) & set(value[claim.than]) - {None})
     if not seeds:
         return Row(claim, "—; 0 pairs", "undecided", f"0 pairs ({min_pairs} needed)", True)
-    difference = stats.paired_difference_interval([value[claim.group][k] for k in seeds],
-                                                  [value[claim.than][k] for k in seeds])
+    mine, theirs = [value[claim.group][k] for k in seeds], [value[claim.than][k] for k in seeds]
+    difference = stats.paired_difference_interval(mine, theirs)
     on = (f"AUC over iterations 0–{next(iter(group_scores.values())).auc_range - 1}" if auc
           else f"first ≥ {plot.THRESHOLD}")
-    t_test, _ = stats.paired_tests([value[claim.group][k] for k in seeds], [value[claim.than][k] for k in seeds])
+    t_test, _ = stats.paired_tests(mine, theirs)
     text = (f"{claim.group} − {claim.than} on {on}, paired forks: mean {difference.format(3 if auc else 1)}; "
             f"{difference.runs} pair{'s' * (difference.runs != 1)}; paired t-test p = {t_test:.2f}")
     if difference.runs < min_pairs:
