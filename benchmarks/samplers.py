@@ -21,7 +21,9 @@ Prints, in one run:
   ``benchmarks/record_goals.py``): clustered as an object mostly at rest leaves them; the curriculum
   sampler's own ``sample()`` at both thread counts (target: no slower at 2 than at 1); and a loop
   that writes 50 rows before every sample, uniform against the curriculum with ``on_write="keep"``
-  (target: <= 5x) and ``"redraw"``.
+  (target: <= 5x) and ``"redraw"``;
+* where the recorded goals' extra time goes: the nearest-neighbour search of one pool on recorded
+  goals against goals uniform in the field, and the share of goals its shortlist leaves unproven.
 
 Run: ``python benchmarks/samplers.py`` (``--episodes``, ``--rounds`` to change the sizes; ``--docs``
 writes the output into ``docs/benchmarks.md``).
@@ -407,6 +409,46 @@ def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False)
         print(f"  {threads} thread(s): uniform {uniform * 1e3:.3f} ms; {line}")
 
 
+def recorded_search_cost(rounds: int, pool: int = 64) -> None:
+    """Where the recorded goals' extra time goes: the Euclidean nearest-neighbour search over one pool of
+    candidates (``draw_ahead`` 8 x K 8 = 64 batches of 256) on recorded goals against goals uniform in the
+    field, the share of goals its shortlist leaves unproven, and how many recorded goals have a
+    neighbour nearer than the search's tolerance (no straight-line bound can prove those)."""
+    from scipy.spatial import cKDTree
+
+    from gchgg.samplers.nearest import _RELATIVE_TOLERANCE, NearestNeighbours
+
+    generator = torch.Generator().manual_seed(6)
+    center, half = (torch.tensor(v) for v in envs.geometry("push_new").field)
+    batches = {
+        "recorded": recorded_achieved_goals(pool * BATCH, generator).view(pool, BATCH, 3),
+        "uniform": (center + (torch.rand(pool * BATCH, 3, generator=generator) * 2 - 1) * half).view(pool, BATCH, 3),
+    }
+    seconds: dict[str, list[float]] = {name: [] for name in batches}
+    unproven: dict[str, int] = {}
+    for _ in range(rounds):
+        for name, goals in batches.items():
+            search, stats = NearestNeighbours(EuclideanMetric()), {}
+            search(goals)  # its scratch memory and layouts, as in a sampler that has run
+            clock = time.perf_counter()
+            search(goals, stats=stats)
+            seconds[name].append(time.perf_counter() - clock)
+            unproven[name] = stats["rescored"]
+    recorded, uniform = (statistics.median(seconds[name]) for name in ("recorded", "uniform"))
+    window = 2 * (2 * search.span * search.block) + 1  # the first rescoring pass: two blocks either side
+    distinct = np.unique(np.load(RECORDED_GOALS), axis=0).astype(np.float64)
+    nearest = cKDTree(distinct).query(distinct, k=2)[0][:, 1]
+    tolerance = _RELATIVE_TOLERANCE  # metres, for coordinates below 1 m
+    print(f"where the recorded goals' time goes (1 thread): the nearest-neighbour search of one pool "
+          f"({pool} x {BATCH} goals) takes {recorded * 1e3:.2f} ms on recorded goals, {uniform * 1e3:.2f} ms on "
+          f"goals uniform in the field ({recorded / uniform:.1f}x);")
+    print(f"  its shortlist leaves {unproven['recorded'] / (pool * BATCH):.1%} of the recorded goals unproven "
+          f"(uniform: {unproven['uniform'] / (pool * BATCH):.1%}), whose nearest neighbours are then read over a "
+          f"window of {window} sorted goals: {np.mean(nearest < tolerance):.0%} of the {len(distinct):,} distinct "
+          f"recorded goals have another within the search's {tolerance:g} m tolerance (an object at rest "
+          "jitters), which no straight-line bound can prove")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=5000)
@@ -428,6 +470,7 @@ def main() -> None:
     plain_buffer_speed(args.rounds)
     if RECORDED_GOALS.exists():
         plain_buffer_speed(args.rounds, recorded=True)
+        recorded_search_cost(args.rounds)
     else:  # benchmarks/record_goals.py writes it from a run's replay files
         print(f"plain buffer with a recorded buffer's achieved goals: skipped, {RECORDED_GOALS.relative_to(ROOT)} "
               "is not in this checkout")
