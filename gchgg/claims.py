@@ -47,6 +47,12 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
   more than 0.5 + m of the pairs), contradicted if it lies outside that band and excludes 0.5, else
   undecided (a few runs give a wide CI: "alike" needs many).
 
+``looks`` (``faster``, ``alike``): the runs per group at each look of a sequential design (runs
+added until the interval decided, e.g. ``[3, 4, 5, 6]``): the interval is then drawn at Pocock's
+level for those looks (:func:`gchgg.stats.sequential_alpha`), not at 95 %, since looking after every
+added run and stopping once an interval decides would otherwise decide too often; the row is
+undecided while the groups' run count differs from the last look (a look not yet listed).
+
 An entry with a list of ``groups`` (or of ``than``) is one claim per member; ``{name}`` and
 ``{than}`` in its ``claim`` are replaced by the display names of ``names``.
 """
@@ -54,6 +60,7 @@ An entry with a list of ``groups`` (or of ``than``) is one claim per member; ``{
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import re
 from collections.abc import Sequence
@@ -95,6 +102,7 @@ class Claim:
     pairs: str = ""  # faster_paired: the task's subfolder of paired forks
     score: str = "first"  # faster, faster_paired, alike: "first" (first >= 0.9) or "auc"
     runs: tuple[tuple[str, str], ...] = ()  # (group, glob under results) instead of <task>/<group>-seed<N>.csv
+    looks: tuple[int, ...] = ()  # faster, alike: runs per group at each look of a sequential design
 
 
 @dataclass
@@ -142,6 +150,12 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
         if score not in SCORES or (score != "first" and kind not in ("faster", "faster_paired", "alike")):
             raise ValueError(f"{where}: score {score!r} with kind {kind}; allowed: {', '.join(SCORES)} with faster, "
                              "faster_paired and alike, first with the other kinds")
+        looks = entry.get("looks") or []
+        if looks and (kind not in ("faster", "alike") or not isinstance(looks, list)
+                      or any(not isinstance(n, int) or n < 1 for n in looks)
+                      or any(b <= a for a, b in itertools.pairwise(looks))):
+            raise ValueError(f"{where}: looks {looks!r} with kind {kind}; allowed with faster and alike: an "
+                             "increasing list of run counts per group, each 1 or more")
         groups, others = _as_list(entry["groups"]), _as_list(entry.get("than", ""))
         runs = entry.get("runs") or {}
         if not isinstance(runs, dict) or any(not isinstance(v, str) for v in runs.values()):
@@ -160,7 +174,7 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
                     id=f"{entry['id']}{suffix}", task=entry["task"], kind=kind, group=group, than=than,
                     claim=entry["claim"].format(name=names.get(group, group), than=names.get(than, than)),
                     paper=entry["paper"], pairs=str(entry.get("pairs", "")), score=score,
-                    runs=tuple((g, runs[g]) for g in (group, than) if g in runs), **fields))
+                    runs=tuple((g, runs[g]) for g in (group, than) if g in runs), looks=tuple(looks), **fields))
     if not claims:
         raise ValueError(f"{path}: no claims (a YAML mapping with a `claims` list)")
     return claims, settings
@@ -291,16 +305,24 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     other = scores.get(claim.than)
     if other is None:
         return Row(claim, f"{first_text}; {claim.than}: 0 runs", "undecided", few, True)
+    alpha, level = stats.ALPHA, ""
+    if claim.looks:
+        alpha = stats.sequential_alpha(claim.looks)
+        level = (f" ({100 * (1 - alpha):.1f} % CI, Pocock's for looks at {', '.join(map(str, claim.looks))} "
+                 "runs)")
     if claim.score == "auc":
-        poi = stats.poi_interval(mine.auc, other.auc)
+        poi = stats.poi_interval(mine.auc, other.auc, alpha=alpha)
         on = f"AUC over iterations 0–{mine.auc_range - 1}"
     else:
         poi = stats.poi_interval(mine.first_bound, other.first_bound, lower_is_better=True,
-                                 x_censored=mine.censored, y_censored=other.censored)
+                                 x_censored=mine.censored, y_censored=other.censored, alpha=alpha)
         on = f"first ≥ {plot.THRESHOLD}"
-    text = f"P({claim.group} beats {claim.than}) on {on}: {poi.format(2)}; {mine.runs} vs {other.runs} runs"
+    text = f"P({claim.group} beats {claim.than}) on {on}: {poi.format(2)}{level}; {mine.runs} vs {other.runs} runs"
     if few:
         return Row(claim, text, "undecided", few, True)
+    if claim.looks and min(mine.runs, other.runs) != claim.looks[-1]:
+        return Row(claim, text, "undecided", f"the last look listed is at {claim.looks[-1]} runs, the groups have "
+                                             f"{mine.runs} and {other.runs}: add the new look to looks")
     if claim.kind == "alike":
         low, high = 0.5 - claim.margin, 0.5 + claim.margin
         band = f"[{low:.2f}, {high:.2f}]"

@@ -49,7 +49,10 @@ pick_no_obstacle 200, pick_obstacle 400), else the task's longest run's length.
 
 ``--compare A B`` prints, per task holding both groups, the probability that a run of A beats a
 run of B on each score (fewer iterations to 0.9; a larger AUC), with its 95 % interval, instead of
-the table (``--table`` and ``--out`` still write theirs).
+the table (``--table`` and ``--out`` still write theirs). ``--looks N1 N2 …`` says that the
+comparison was looked at after N1, N2, … runs per group, runs being added until an interval decided
+(a sequential design); the intervals are then drawn at Pocock's level for those looks
+(:func:`gchgg.stats.sequential_alpha`), and the last look must be the groups' present run count.
 
 ``--task NAME`` takes every run as one of task ``NAME`` (one panel, that task's budget), for runs of a
 task kept in several folders, e.g. a Fig. 6 ablation's CSVs (``docs/results/fig6/eta/500-seed0.csv``,
@@ -70,6 +73,7 @@ from __future__ import annotations
 import argparse
 import csv
 import functools
+import itertools
 import math
 import re
 from collections.abc import Iterable, Sequence
@@ -369,17 +373,23 @@ def scores(groups: dict[tuple[str, str], list[Run]], budget: int | None = None,
 
 
 def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, budget: int | None = None,
-            rng: np.random.Generator | None = None, auc_iterations: int | None = None) -> list[str]:
+            rng: np.random.Generator | None = None, auc_iterations: int | None = None,
+            looks: Sequence[int] | None = None) -> list[str]:
     """Per task holding both groups, one line: P(a run of ``first`` beats a run of ``second``) on first ≥ 0.9
     (strictly fewer iterations; a censored run read as its censoring iteration, a bound, and its pairs as
     in :func:`gchgg.stats.probability_of_improvement`: :attr:`Scores.first_bound`) and
     on the AUC (larger; over the range :func:`auc_range` gives the two groups' runs, or ``auc_iterations``),
-    each with its 95 % interval and the runs it rests on."""
+    each with its 95 % interval and the runs it rests on; with ``looks`` (the runs per group at each look
+    of a sequential design, the last one now), at Pocock's level for those looks instead."""
     labels = {label for _, label in groups}
     for name in (first, second):
         if name not in labels:
             raise ValueError(f"--compare {first} {second}: no group {name!r}; "
                              f"the groups are {', '.join(sorted(labels))}")
+    alpha, level = stats.ALPHA, ""
+    if looks:
+        alpha = stats.sequential_alpha(looks)
+        level = f"; {100 * (1 - alpha):.1f} % intervals, Pocock's for looks at {', '.join(map(str, looks))} runs"
     lines = []
     for task in sorted({task for task, _ in groups}):
         if (task, first) not in groups or (task, second) not in groups:
@@ -389,11 +399,15 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
         pair = {key: groups[key] for key in ((task, first), (task, second))}
         pair_scores = scores(pair, budget, auc_iterations)
         a, b = pair_scores[task, first], pair_scores[task, second]
+        if looks and min(a.runs, b.runs) != looks[-1]:
+            raise ValueError(f"--looks {' '.join(map(str, looks))}: the last look is at {looks[-1]} runs, but {task} "
+                             f"has {a.runs} runs of {first} and {b.runs} of {second}; list every look up to now")
         poi_first = stats.poi_interval(a.first_bound, b.first_bound, lower_is_better=True, x_censored=a.censored,
-                                       y_censored=b.censored, rng=rng)
-        poi_auc = stats.poi_interval(a.auc, b.auc, rng=rng)
+                                       y_censored=b.censored, alpha=alpha, rng=rng)
+        poi_auc = stats.poi_interval(a.auc, b.auc, alpha=alpha, rng=rng)
         lines.append(f"{task}: P({first} beats {second}) first >= {THRESHOLD}: {poi_first.format()}"
-                     f" ({a.runs} vs {b.runs} runs); AUC over iterations 0-{a.auc_range - 1}: {poi_auc.format()}")
+                     f" ({a.runs} vs {b.runs} runs); AUC over iterations 0-{a.auc_range - 1}: {poi_auc.format()}"
+                     f"{level}")
     return lines
 
 
@@ -594,6 +608,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--compare", nargs=2, metavar=("A", "B"),
                         help="print P(a run of group A beats one of group B) per task, on both scores, "
                              "instead of the table")
+    parser.add_argument("--looks", type=int, nargs="+", metavar="N",
+                        help="with --compare: the runs per group at each look of a sequential design (runs added "
+                             "until an interval decided), the last one now; the intervals are then Pocock's for "
+                             "those looks")
     parser.add_argument("--task", help="treat every run as one of this task (its budget, one panel): runs of one "
                                        "task kept in several folders, e.g. a Fig. 6 ablation beside its default runs")
     parser.add_argument("--pairs", nargs=2, metavar=("A", "B"),
@@ -613,10 +631,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     if unknown:
         parser.error(f"--y {' '.join(unknown)}: no run logged {'these columns' if len(unknown) > 1 else 'this column'};"
                      f" the runs' columns are {', '.join(sorted(logged))}")
+    if args.looks and not args.compare:
+        parser.error("--looks: the looks of a comparison; allowed only with --compare A B")
+    if args.looks and (min(args.looks) < 1 or any(b <= a for a, b in itertools.pairwise(args.looks))):
+        parser.error(f"--looks {' '.join(map(str, args.looks))}: allowed an increasing list of run counts, each 1 "
+                     "or more")
     groups = group_runs(runs)
     if args.compare:
         try:
-            print("\n".join(compare(groups, *args.compare, budget=args.budget, auc_iterations=args.auc_range)))
+            print("\n".join(compare(groups, *args.compare, budget=args.budget, auc_iterations=args.auc_range,
+                                     looks=args.looks)))
         except ValueError as error:
             parser.error(str(error))
     if args.pairs:

@@ -18,6 +18,11 @@ seaborn and pandas for what is a few lines of array code, so it is not a depende
   With few pairs a percentile interval is too narrow (it covers less than 95 %), so
   :func:`paired_tests` gives the classical small-sample checks beside it: the paired t-test and the
   Wilcoxon signed-rank test (scipy).
+- **Repeated looks** (a sequential design: runs added until an interval decides): an interval read
+  after every added run excludes a value that holds more often than its nominal 5 %.
+  :func:`sequential_alpha` gives Pocock's constant per-look level for looks at the given numbers of
+  runs (the largest of K correlated statistics exceeds it with probability 5 % in all), with which
+  every look's interval is to be drawn instead.
 - **Probability of improvement** P(X beats Y): over all pairs of a run of X and a run of Y (of the
   same task), the fraction where X's run is better plus half the fraction of ties (the Mann-Whitney
   U statistic over n · m), averaged over tasks. Its CI bootstraps the runs of X and of Y
@@ -46,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Estimate", "bootstrap_indices", "iqm", "iqm_interval", "paired_difference_interval", "paired_tests",
-           "poi_interval", "probability_of_improvement", "unpaired_difference_interval"]
+           "poi_interval", "probability_of_improvement", "sequential_alpha", "unpaired_difference_interval"]
 
 REPS = 2000
 """Bootstrap resamples per interval (rliable's default)."""
@@ -247,6 +252,40 @@ def unpaired_difference_interval(x, y, *, reps: int = REPS, alpha: float = ALPHA
     iy = rng.integers(0, len(y), size=(reps, len(y)))
     low, high = _percentiles(x[ix].mean(1) - y[iy].mean(1), alpha)
     return Estimate(float(x.mean() - y.mean()), low, high, len(x), len(y))
+
+
+def sequential_alpha(looks, alpha: float = ALPHA, *, draws: int = 1_000_000,
+                     rng: np.random.Generator | None = None) -> float:
+    """Pocock's nominal two-sided level for each of K looks at a comparison, so that the K looks together
+    reject a true null with probability ``alpha``: a design that adds runs and looks after each (at
+    ``looks`` = 3, 4, 5, 6 runs per group, say) draws every look's interval at ``1 − sequential_alpha``
+    instead of ``1 − alpha``.
+
+    The looks' statistics are taken as a standardized sum of independent runs, Z_k = S(n_k) / √n_k
+    (information grows with the runs), and the constant c with P(max_k |Z_k| > c) = ``alpha`` is the
+    ``1 − alpha`` quantile of the maximum over ``draws`` simulated sequences (seeded: the same digits on
+    every call). One look gives ``alpha`` itself. For K equally spaced looks at alpha = 0.05 it gives
+    Pocock's (1977) 0.0294, 0.0221, 0.0182, 0.0158 for K = 2 … 5 (``tests/test_stats.py``).
+
+    Args:
+        looks: the numbers of runs per group at each look, increasing (e.g. ``[3, 4, 5, 6]``).
+        alpha: the overall level. Default 0.05.
+        draws: simulated sequences.
+        rng: draws them (default: a fresh generator seeded 0).
+    """
+    import scipy.stats
+
+    sizes = np.asarray(list(looks), dtype=float)
+    if sizes.ndim != 1 or not len(sizes) or not np.all(sizes > 0) or np.any(np.diff(sizes) <= 0):
+        raise ValueError(f"looks={list(looks)}: allowed a non-empty increasing list of run counts, each 1 or more")
+    _check(draws, alpha)
+    if len(sizes) == 1:
+        return alpha
+    rng, steps, largest = _rng(rng), np.sqrt(np.diff(sizes, prepend=0.0)), []
+    for start in range(0, draws, 100_000):  # in chunks: a few MB at a time
+        walk = np.cumsum(rng.standard_normal((min(100_000, draws - start), len(sizes))) * steps, axis=1)
+        largest.append((np.abs(walk) / np.sqrt(sizes)).max(1))
+    return float(2 * scipy.stats.norm.sf(np.quantile(np.concatenate(largest), 1 - alpha)))
 
 
 def paired_tests(x, y) -> tuple[float, float]:

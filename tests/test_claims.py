@@ -223,3 +223,37 @@ def test_a_claim_with_runs_missing_a_group_or_a_score_its_kind_cannot_read_is_an
     path.write_text(f"claims:\n  - {entry}\n")
     with pytest.raises(ValueError, match=message):
         claims.load_claims(path)
+
+
+def test_looks_give_a_faster_claim_pococks_interval_and_a_look_not_listed_leaves_it_undecided(tmp_path):
+    from gchgg import stats
+
+    toy = tmp_path / "toy"
+    for seed, (a, b) in enumerate(zip([2, 3, 2, 4, 1, 3, 2, 5], [3, 2, 4, 3, 4, 5, 3, 4], strict=True)):
+        write_csv(toy / f"a-seed{seed}.csv", reaching(a, length=8))
+        write_csv(toy / f"b-seed{seed}.csv", reaching(b, length=8))
+    (tmp_path / "claims.yaml").write_text("""
+claims:
+  - {id: plain, task: toy, kind: faster, groups: [a], than: b, claim: "c", paper: "x"}
+  - {id: looked, task: toy, kind: faster, groups: [a], than: b, looks: [4, 6, 8], claim: "c", paper: "x"}
+  - {id: behind, task: toy, kind: faster, groups: [a], than: b, looks: [4, 6], claim: "c", paper: "x"}
+""")
+    loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
+    rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
+    level = 100 * (1 - stats.sequential_alpha([4, 6, 8]))
+    assert f" ({level:.1f} % CI, Pocock's for looks at 4, 6, 8 runs); 8 vs 8 runs" in rows["looked"].measured
+
+    def interval(row):
+        low, high = row.measured.split(" [")[1].split("]")[0].split(", ")
+        return float(low), float(high)
+
+    (low, high), (low_looked, high_looked) = interval(rows["plain"]), interval(rows["looked"])
+    assert low_looked <= low and high_looked >= high and (low_looked, high_looked) != (low, high)
+    assert rows["behind"].verdict == "undecided"
+    assert rows["behind"].reason == ("the last look listed is at 6 runs, the groups have 8 and 8: add the new look "
+                                     "to looks")
+    for looks, kind in [("[4, 3]", "faster"), ("[3]", "fails")]:
+        (tmp_path / "bad.yaml").write_text(f"claims:\n  - {{id: x, task: t, kind: {kind}, groups: [a], than: b, "
+                                           f"within: 5, looks: {looks}, claim: c, paper: p}}\n")
+        with pytest.raises(ValueError, match=f"claim x: looks .* with kind {kind}; allowed with faster and alike"):
+            claims.load_claims(tmp_path / "bad.yaml")

@@ -341,3 +341,32 @@ def test_task_puts_runs_of_several_folders_in_one_panel(tmp_path, capsys):
                "--task", "pick_no_obstacle", "--at", "5"])
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| pick_no_obstacle")]
     assert [row.split(" | ")[1] for row in rows] == ["500", "gchgg"]
+
+
+def test_looks_draw_the_compare_intervals_at_pococks_level_for_a_sequential_design(tmp_path, capsys):
+    from gchgg import stats
+
+    for seed, (a, b) in enumerate(zip([2, 3, 2, 4, 1, 3, 2, 5], [3, 2, 4, 3, 4, 5, 3, 4], strict=True)):
+        write_csv(tmp_path / "toy" / f"a-seed{seed}.csv", [0.0] * a + [0.95] * (6 - a))
+        write_csv(tmp_path / "toy" / f"b-seed{seed}.csv", [0.0] * b + [0.95] * (6 - b))
+    plot.main([str(tmp_path / "toy"), "--compare", "a", "b"])
+    plain = capsys.readouterr().out.strip()
+    plot.main([str(tmp_path / "toy"), "--compare", "a", "b", "--looks", "4", "6", "8"])
+    looked = capsys.readouterr().out.strip()
+    level = 100 * (1 - stats.sequential_alpha([4, 6, 8]))
+    assert looked.endswith(f"; {level:.1f} % intervals, Pocock's for looks at 4, 6, 8 runs") and 96 < level < 99
+
+    def first(line):  # point, low, high of P on first >= 0.9
+        point, interval = line.split("first >= 0.9: ")[1].split(" (")[0].split(" [")
+        return float(point), *map(float, interval.rstrip("]").split(", "))
+
+    (p, low, high), (p_looked, low_looked, high_looked) = first(plain), first(looked)
+    assert p == p_looked and low_looked <= low and high_looked >= high and (low_looked, high_looked) != (low, high)
+    for args, message in [(["--looks", "4", "6"], "--looks 4 6: the last look is at 6 runs, but toy has 8 runs"),
+                          (["--looks", "4", "3"], "--looks 4 3: allowed an increasing list of run counts")]:
+        with pytest.raises(SystemExit):
+            plot.main([str(tmp_path / "toy"), "--compare", "a", "b", *args])
+        assert message in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        plot.main([str(tmp_path / "toy"), "--looks", "4"])
+    assert "--looks: the looks of a comparison; allowed only with --compare A B" in capsys.readouterr().err

@@ -167,3 +167,21 @@ def test_paired_tests_give_the_t_and_signed_rank_p_values():
     assert all(np.isnan(stats.paired_tests([1.0], [0.0])))  # one pair: neither test is defined
     t, w = stats.paired_tests([1.0, 2.0], [1.0, 2.0])  # no difference at all
     assert np.isnan(t) and np.isnan(w)
+
+
+@pytest.mark.parametrize("looks, pocock", [([1, 2], 0.0294), ([1, 2, 3], 0.0221), ([1, 2, 3, 4], 0.0182),
+                                           ([1, 2, 3, 4, 5], 0.0158)])
+def test_sequential_alpha_is_pococks_level_for_equally_spaced_looks(looks, pocock):
+    """Pocock's (1977) nominal levels of K equally spaced looks at an overall 5 % (Jennison and Turnbull,
+    2000, table 2.1); only the looks' ratios matter."""
+    assert stats.sequential_alpha(looks) == pytest.approx(pocock, abs=4e-4)
+    assert stats.sequential_alpha([3 * n for n in looks]) == pytest.approx(pocock, abs=4e-4)
+
+
+def test_one_look_keeps_the_level_close_looks_cost_less_and_bad_looks_are_errors():
+    assert stats.sequential_alpha([6]) == 0.05
+    # looks after 3, 4, 5 and 6 runs are strongly correlated: a milder correction than 4 equally spaced looks
+    assert 0.0182 + 1e-3 < stats.sequential_alpha([3, 4, 5, 6]) < 0.05
+    for bad in ([], [3, 3], [0, 1], [4, 3]):
+        with pytest.raises(ValueError, match=r"looks=.*allowed a non-empty increasing list of run counts"):
+            stats.sequential_alpha(bad)
