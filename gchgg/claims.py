@@ -47,11 +47,11 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
   more than 0.5 + m of the pairs), contradicted if it lies outside that band and excludes 0.5, else
   undecided (a few runs give a wide CI: "alike" needs many).
 
-``looks`` (``faster``, ``alike``): the runs per group at each look of a sequential design (runs
-added until the interval decided, e.g. ``[3, 4, 5, 6]``): the interval is then drawn at Pocock's
-level for those looks (:func:`gchgg.stats.sequential_alpha`), not at 95 %, since looking after every
-added run and stopping once an interval decides would otherwise decide too often; the row is
-undecided while the groups' run count differs from the last look (a look not yet listed).
+``looks`` (``faster``, ``alike``): the runs per group at each planned look of a sequential design
+(runs added until the interval decides, e.g. ``[3, 4, 5, 6, 7, 8, 9, 10]``): the interval is then
+drawn at Pocock's level for all those looks (:func:`gchgg.stats.sequential_alpha`), not at 95 %,
+since reading it after every added run and stopping once it decides would otherwise decide too
+often; the row is undecided while the groups' run counts differ or are not one of the looks.
 
 An entry with a list of ``groups`` (or of ``than``) is one claim per member; ``{name}`` and
 ``{than}`` in its ``claim`` are replaced by the display names of ``names``.
@@ -102,7 +102,7 @@ class Claim:
     pairs: str = ""  # faster_paired: the task's subfolder of paired forks
     score: str = "first"  # faster, faster_paired, alike: "first" (first >= 0.9) or "auc"
     runs: tuple[tuple[str, str], ...] = ()  # (group, glob under results) instead of <task>/<group>-seed<N>.csv
-    looks: tuple[int, ...] = ()  # faster, alike: runs per group at each look of a sequential design
+    looks: tuple[int, ...] = ()  # faster, alike: runs per group at each planned look of a sequential design
 
 
 @dataclass
@@ -308,8 +308,7 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     alpha, level = stats.ALPHA, ""
     if claim.looks:
         alpha = stats.sequential_alpha(claim.looks)
-        level = (f" ({100 * (1 - alpha):.1f} % CI, Pocock's for looks at {', '.join(map(str, claim.looks))} "
-                 "runs)")
+        level = f" ({100 * (1 - alpha):.1f} % CI, Pocock's for looks at {plot.format_looks(claim.looks)})"
     if claim.score == "auc":
         poi = stats.poi_interval(mine.auc, other.auc, alpha=alpha)
         on = f"AUC over iterations 0–{mine.auc_range - 1}"
@@ -320,9 +319,9 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     text = f"P({claim.group} beats {claim.than}) on {on}: {poi.format(2)}{level}; {mine.runs} vs {other.runs} runs"
     if few:
         return Row(claim, text, "undecided", few, True)
-    if claim.looks and min(mine.runs, other.runs) != claim.looks[-1]:
-        return Row(claim, text, "undecided", f"the last look listed is at {claim.looks[-1]} runs, the groups have "
-                                             f"{mine.runs} and {other.runs}: add the new look to looks")
+    if claim.looks and (mine.runs != other.runs or mine.runs not in claim.looks):
+        return Row(claim, text, "undecided", f"{mine.runs} and {other.runs} runs: not a look of the design "
+                                             f"({plot.format_looks(claim.looks)} each)")
     if claim.kind == "alike":
         low, high = 0.5 - claim.margin, 0.5 + claim.margin
         band = f"[{low:.2f}, {high:.2f}]"

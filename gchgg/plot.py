@@ -49,10 +49,11 @@ pick_no_obstacle 200, pick_obstacle 400), else the task's longest run's length.
 
 ``--compare A B`` prints, per task holding both groups, the probability that a run of A beats a
 run of B on each score (fewer iterations to 0.9; a larger AUC), with its 95 % interval, instead of
-the table (``--table`` and ``--out`` still write theirs). ``--looks N1 N2 …`` says that the
-comparison was looked at after N1, N2, … runs per group, runs being added until an interval decided
-(a sequential design); the intervals are then drawn at Pocock's level for those looks
-(:func:`gchgg.stats.sequential_alpha`), and the last look must be the groups' present run count.
+the table (``--table`` and ``--out`` still write theirs). ``--looks N1 N2 …`` names the looks of a
+sequential design, planned before its first: the comparison is read at N1, N2, … runs per group (runs
+added until an interval decides, at most the last look's); the intervals are then drawn at Pocock's
+level for all those looks (:func:`gchgg.stats.sequential_alpha`), and the groups' present run count
+must be one of them.
 
 ``--task NAME`` takes every run as one of task ``NAME`` (one panel, that task's budget), for runs of a
 task kept in several folders, e.g. a Fig. 6 ablation's CSVs (``docs/results/fig6/eta/500-seed0.csv``,
@@ -84,8 +85,8 @@ import numpy as np
 
 from gchgg import stats
 
-__all__ = ["Run", "Scores", "auc", "auc_range", "budget_of", "compare", "find_runs", "first_score", "group_runs",
-           "iqr", "paired", "plot", "scores", "seed_of", "table"]
+__all__ = ["Run", "Scores", "auc", "auc_range", "budget_of", "compare", "find_runs", "first_score", "format_looks",
+           "group_runs", "iqr", "paired", "plot", "scores", "seed_of", "table"]
 
 _IGNORED = ("seed", "resume", "threads", "matmul", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
 _SEED_SUFFIX = re.compile(r"-seed\d+$")
@@ -379,8 +380,8 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
     (strictly fewer iterations; a censored run read as its censoring iteration, a bound, and its pairs as
     in :func:`gchgg.stats.probability_of_improvement`: :attr:`Scores.first_bound`) and
     on the AUC (larger; over the range :func:`auc_range` gives the two groups' runs, or ``auc_iterations``),
-    each with its 95 % interval and the runs it rests on; with ``looks`` (the runs per group at each look
-    of a sequential design, the last one now), at Pocock's level for those looks instead."""
+    each with its 95 % interval and the runs it rests on; with ``looks`` (the runs per group at each planned
+    look of a sequential design, the present count among them), at Pocock's level for those looks instead."""
     labels = {label for _, label in groups}
     for name in (first, second):
         if name not in labels:
@@ -389,7 +390,7 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
     alpha, level = stats.ALPHA, ""
     if looks:
         alpha = stats.sequential_alpha(looks)
-        level = f"; {100 * (1 - alpha):.1f} % intervals, Pocock's for looks at {', '.join(map(str, looks))} runs"
+        level = f"; {100 * (1 - alpha):.1f} % intervals, Pocock's for looks at {format_looks(looks)}"
     lines = []
     for task in sorted({task for task, _ in groups}):
         if (task, first) not in groups or (task, second) not in groups:
@@ -399,9 +400,9 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
         pair = {key: groups[key] for key in ((task, first), (task, second))}
         pair_scores = scores(pair, budget, auc_iterations)
         a, b = pair_scores[task, first], pair_scores[task, second]
-        if looks and min(a.runs, b.runs) != looks[-1]:
-            raise ValueError(f"--looks {' '.join(map(str, looks))}: the last look is at {looks[-1]} runs, but {task} "
-                             f"has {a.runs} runs of {first} and {b.runs} of {second}; list every look up to now")
+        if looks and (a.runs != b.runs or a.runs not in looks):
+            raise ValueError(f"--looks {' '.join(map(str, looks))}: {task} has {a.runs} runs of {first} and {b.runs} "
+                             f"of {second}; a look reads the same number of runs of each, one of the planned looks")
         poi_first = stats.poi_interval(a.first_bound, b.first_bound, lower_is_better=True, x_censored=a.censored,
                                        y_censored=b.censored, alpha=alpha, rng=rng)
         poi_auc = stats.poi_interval(a.auc, b.auc, alpha=alpha, rng=rng)
@@ -409,6 +410,14 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
                      f" ({a.runs} vs {b.runs} runs); AUC over iterations 0-{a.auc_range - 1}: {poi_auc.format()}"
                      f"{level}")
     return lines
+
+
+def format_looks(looks: Sequence[int]) -> str:
+    """``3, 4, 5 runs``, or ``3-10 runs`` for a run of consecutive counts."""
+    looks = list(looks)
+    if len(looks) > 2 and looks == list(range(looks[0], looks[-1] + 1)):
+        return f"{looks[0]}-{looks[-1]} runs"
+    return f"{', '.join(map(str, looks))} runs"
 
 
 def seed_of(run: Run) -> int | None:
@@ -609,9 +618,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="print P(a run of group A beats one of group B) per task, on both scores, "
                              "instead of the table")
     parser.add_argument("--looks", type=int, nargs="+", metavar="N",
-                        help="with --compare: the runs per group at each look of a sequential design (runs added "
-                             "until an interval decided), the last one now; the intervals are then Pocock's for "
-                             "those looks")
+                        help="with --compare: the runs per group at each planned look of a sequential design "
+                             "(runs added until an interval decides); the intervals are then Pocock's for those "
+                             "looks, and the present run count must be one of them")
     parser.add_argument("--task", help="treat every run as one of this task (its budget, one panel): runs of one "
                                        "task kept in several folders, e.g. a Fig. 6 ablation beside its default runs")
     parser.add_argument("--pairs", nargs=2, metavar=("A", "B"),

@@ -351,10 +351,10 @@ def test_looks_draw_the_compare_intervals_at_pococks_level_for_a_sequential_desi
         write_csv(tmp_path / "toy" / f"b-seed{seed}.csv", [0.0] * b + [0.95] * (6 - b))
     plot.main([str(tmp_path / "toy"), "--compare", "a", "b"])
     plain = capsys.readouterr().out.strip()
-    plot.main([str(tmp_path / "toy"), "--compare", "a", "b", "--looks", "4", "6", "8"])
+    plot.main([str(tmp_path / "toy"), "--compare", "a", "b", "--looks", "4", "6", "8", "10"])
     looked = capsys.readouterr().out.strip()
-    level = 100 * (1 - stats.sequential_alpha([4, 6, 8]))
-    assert looked.endswith(f"; {level:.1f} % intervals, Pocock's for looks at 4, 6, 8 runs") and 96 < level < 99
+    level = 100 * (1 - stats.sequential_alpha([4, 6, 8, 10]))
+    assert looked.endswith(f"; {level:.1f} % intervals, Pocock's for looks at 4, 6, 8, 10 runs") and 96 < level < 99
 
     def first(line):  # point, low, high of P on first >= 0.9
         point, interval = line.split("first >= 0.9: ")[1].split(" (")[0].split(" [")
@@ -362,7 +362,8 @@ def test_looks_draw_the_compare_intervals_at_pococks_level_for_a_sequential_desi
 
     (p, low, high), (p_looked, low_looked, high_looked) = first(plain), first(looked)
     assert p == p_looked and low_looked <= low and high_looked >= high and (low_looked, high_looked) != (low, high)
-    for args, message in [(["--looks", "4", "6"], "--looks 4 6: the last look is at 6 runs, but toy has 8 runs"),
+    for args, message in [(["--looks", "4", "6", "9"], "--looks 4 6 9: toy has 8 runs of a and 8 of b; a look reads "
+                                                       "the same number of runs of each, one of the planned looks"),
                           (["--looks", "4", "3"], "--looks 4 3: allowed an increasing list of run counts")]:
         with pytest.raises(SystemExit):
             plot.main([str(tmp_path / "toy"), "--compare", "a", "b", *args])
