@@ -60,6 +60,7 @@ An entry with a list of ``groups`` (or of ``than``) is one claim per member; ``{
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import math
 import re
@@ -248,6 +249,12 @@ def _number(value: float) -> str:
     return f"{value:g}"
 
 
+@functools.cache
+def _pocock_alpha(looks: tuple[int, ...]) -> float:
+    """:func:`gchgg.stats.sequential_alpha` of the looks, simulated once per design (claims share designs)."""
+    return stats.sequential_alpha(looks)
+
+
 def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[np.ndarray, int, int]],
           min_runs: int = 3, slack: float = 0.1) -> Row:
     """The claim's row: its measured figure and its verdict by the rule of its kind (module docstring)."""
@@ -307,7 +314,7 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
         return Row(claim, f"{first_text}; {claim.than}: 0 runs", "undecided", few, True)
     alpha, level = stats.ALPHA, ""
     if claim.looks:
-        alpha = stats.sequential_alpha(claim.looks)
+        alpha = _pocock_alpha(claim.looks)
         level = f" ({100 * (1 - alpha):.1f} % CI, Pocock's for looks at {plot.format_looks(claim.looks)})"
     if claim.score == "auc":
         poi = stats.poi_interval(mine.auc, other.auc, alpha=alpha)
