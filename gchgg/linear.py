@@ -73,6 +73,8 @@ def products_in(precision: str) -> Iterator[None]:
     ...     y = layer(x)
     >>> y.dtype, bool(torch.allclose(y, layer(x), rtol=0.05, atol=0.05))
     (torch.float32, True)
+    >>> bool(torch.equal(y, layer(x))) == (resolve_precision("auto") == "float32")  # bfloat16 rounds
+    True
     """
     global _product_dtype
     dtype = getattr(torch, resolve_precision(precision))
