@@ -13,8 +13,9 @@ suffix and its task is its folder's name (``docs/results/push_new/gchgg-seed0.cs
 ``push_new``, group ``gchgg``). A run that stopped early
 (``train.stop_success``) holds its last value to the longest run's end.
 
-The figure has one panel per task and per ``--y`` column (rows: columns; default: the success rate)
-and a median line with an interquartile band per group (Fig. 5 of the paper). ``--y d_g
+The figure has one panel per task and per ``--y`` column (rows: columns; default: the success rate;
+the tasks in Fig. 5's order) and a median line with an interquartile band per group, each group in
+one colour throughout (Fig. 5 of the paper). ``--y d_g
 train_success_rate object_rose_10cm`` draws a run's diagnostics beside its success. The table
 (Markdown) gives per group: runs, iterations to the first success rate ≥ 0.5 and ≥ 0.9 (median
 [IQR] over runs; a run that never got there counts as never, and the table says how many did), each
@@ -568,6 +569,22 @@ def _while_curriculum(run: Run, column: str) -> float:
     return float(np.nanmean(values)) if len(values) else math.nan
 
 
+FIG5_TASKS = ("reach", "push_new", "pick_no_obstacle", "pick_obstacle")
+"""The paper's Fig. 5 panels a–d, in its order: the figure's panels follow it."""
+
+
+def panel_tasks(tasks: Iterable[str]) -> list[str]:
+    """The figure's panel order: the tasks of Fig. 5 in the paper's order, then any others alphabetically."""
+    tasks = set(tasks)
+    return [t for t in FIG5_TASKS if t in tasks] + sorted(tasks - set(FIG5_TASKS))
+
+
+def label_colours(labels: Iterable[str]) -> dict[str, str]:
+    """One colour per group label, the same in every panel (matplotlib's cycle ``C0``, ``C1``, … over the
+    sorted labels), so that a method keeps its colour where another task lacks a group."""
+    return {label: f"C{i % 10}" for i, label in enumerate(sorted(set(labels)))}
+
+
 def plot(
     groups: dict[tuple[str, str], list[Run]], out: str | Path, column: str | Sequence[str] = "success_rate"
 ) -> None:
@@ -578,7 +595,8 @@ def plot(
     import matplotlib.pyplot as plt
 
     columns = _as_list(column)
-    tasks = sorted({task for task, _ in groups})
+    tasks = panel_tasks(task for task, _ in groups)
+    colours = label_colours(label for _, label in groups)
     fig, axes = plt.subplots(len(columns), len(tasks), figsize=(5.5 * len(tasks), 4 * len(columns)), squeeze=False)
     for row, name in zip(axes, columns, strict=True):
         for ax, task in zip(row, tasks, strict=True):
@@ -588,8 +606,8 @@ def plot(
                 values = curves(runs, name)
                 x = np.arange(values.shape[1])
                 stats = np.array([iqr(values[:, i]) for i in x])
-                (line,) = ax.plot(x, stats[:, 0], label=f"{label} (n={len(runs)})")
-                ax.fill_between(x, stats[:, 1], stats[:, 2], color=line.get_color(), alpha=0.2)
+                ax.plot(x, stats[:, 0], color=colours[label], label=f"{label} (n={len(runs)})")
+                ax.fill_between(x, stats[:, 1], stats[:, 2], color=colours[label], alpha=0.2)
             ax.set_title(task or "runs")
             ax.set_xlabel("iteration")
             ax.set_ylabel(name)

@@ -371,3 +371,10 @@ def test_looks_draw_the_compare_intervals_at_pococks_level_for_a_sequential_desi
     with pytest.raises(SystemExit):
         plot.main([str(tmp_path / "toy"), "--looks", "4"])
     assert "--looks: the looks of a comparison; allowed only with --compare A B" in capsys.readouterr().err
+
+
+def test_panels_follow_fig5s_task_order_and_a_group_keeps_its_colour_across_panels():
+    assert plot.panel_tasks(["pick_obstacle", "fig6", "reach", "push_new", "pick_no_obstacle", "abc"]) == [
+        "reach", "push_new", "pick_no_obstacle", "pick_obstacle", "abc", "fig6"]
+    # her is missing from one task: cher keeps C0, gchgg C1 and her C2 in every panel
+    assert plot.label_colours(["gchgg", "cher", "her", "gchgg"]) == {"cher": "C0", "gchgg": "C1", "her": "C2"}
