@@ -19,8 +19,9 @@ the same raw steps plus bare fp32 updates with torch's default matmul; last, two
 processes at once against one alone, each as training runs by default (``--side-by-side``).
 
 The networks' products run on ``--matmul`` (default ``auto``, the trainer's default: oneDNN where
-torch has it), the bare updates of the floor too; the trainers' updates in the training default
-``precision=auto`` (bfloat16 where oneDNN computes it natively), the floors' bare updates in float32.
+measured faster, ``gchgg.linear.ONEDNN_FASTER``), the bare updates of the floor too; the trainers'
+updates in the training default ``precision=auto`` (bfloat16 where oneDNN computes it natively), the
+floors' bare updates in float32.
 
     python benchmarks/iteration.py [--iterations 3] [--updates 1000] [--threads 1] [--chunks 1 5 50]
                                    [--matmul auto] [--overlap 3]

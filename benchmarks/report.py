@@ -3,9 +3,11 @@
 Every benchmark script ends with ``report.run(main, __file__)``. With ``--docs`` on its command line
 (removed before the script parses its own arguments) the figures it printed replace that script's
 section of ``docs/benchmarks.md``, under a line that records the command, the commit, the date,
-the machine and its load average when the run started (and ``$BENCHMARK_NOTE``, e.g. "training
-runs paused"): these machines are shared, so a figure is only as quiet as the machine was. Other
-sections are left as they are.
+the machine (with the CPU capability torch runs at) and its load average when the run started (and
+``$BENCHMARK_NOTE``, e.g. "training runs paused"): these machines are shared, so a figure is only as
+quiet as the machine was. Other sections are left as they are. A run where torch runs at a
+capability other than AVX-512 writes its own section, ``<script> on <capability>`` (e.g.
+``linear.py on AVX2``), so the figures of both kinds of machine stand side by side.
 """
 
 from __future__ import annotations
@@ -28,7 +30,9 @@ Written by the scripts in `benchmarks/` (`python benchmarks/<name>.py --docs`); 
 Each section is the script's output from its last run with `--docs`, under the commit, date,
 machine and load average it ran with (and how the machine was shared, where that was noted). \
 Speed is printed as ratios measured in the same run: the
-machines are shared and noisy, so absolute times vary between runs by up to 2x.
+machines are shared and noisy, so absolute times vary between runs by up to 2x. A section titled
+`<script> on <capability>` ran on a CPU where torch runs at that capability (AVX2: no AVX-512, so
+no native bfloat16 and slower oneDNN products); the others on AVX-512 machines.
 """
 
 
@@ -57,8 +61,21 @@ def run(main: Callable[[], None], script: str) -> None:
     with contextlib.redirect_stdout(_Tee(sys.stdout, captured)):
         main()
     if write:
-        write_section(Path(script).name, started, captured.getvalue())
-        print(f"wrote the {Path(script).name} section of {DOCS.relative_to(ROOT)}", file=sys.stderr)
+        name = section_name(Path(script).name, _capability())
+        write_section(name, started, captured.getvalue())
+        print(f"wrote the {name} section of {DOCS.relative_to(ROOT)}", file=sys.stderr)
+
+
+def section_name(script: str, capability: str) -> str:
+    """The script's section: its name on AVX-512, ``<script> on <capability>`` elsewhere."""
+    return script if capability == "AVX512" else f"{script} on {capability}"
+
+
+def _capability() -> str:
+    """The CPU capability torch's kernels run at (``AVX512``, ``AVX2``, …)."""
+    import torch
+
+    return torch.backends.cpu.get_cpu_capability()
 
 
 def _context(script: str) -> str:
@@ -70,7 +87,7 @@ def _context(script: str) -> str:
         commit += " (with uncommitted changes)"
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    machine = f"{os.cpu_count()} CPUs ({_cpu_model()}), Python {platform.python_version()}"
+    machine = f"{os.cpu_count()} CPUs ({_cpu_model()}, torch at {_capability()}), Python {platform.python_version()}"
     return f"`{command}` at {commit}, {date}; {machine}; load average {load} at the start."
 
 

@@ -19,7 +19,7 @@ The agent follows the reference implementation's defaults (``REFERENCE.md``, "Tr
 optimisers, the target-update schedule, exploration, the value function HGG needs and a complete
 ``state_dict``. Its :meth:`DDPGAgent.update` reads the batch's tensors once and runs the loss's
 tensor path (``benchmarks/agent_update.py`` times it). Its ``matmul`` argument picks who computes
-the wide layers' matrix products (:mod:`gchgg.linear`: oneDNN where torch has it); it changes
+the wide layers' matrix products (:mod:`gchgg.linear`: oneDNN where measured faster); it changes
 speed, not the math.
 """
 
@@ -501,7 +501,8 @@ class DDPGAgent:
         config: the hyperparameters (:class:`DDPGConfig`; default: the original code's).
         generator: draws the initial weights (``None``: torch's global generator).
         matmul: who computes the wide layers' products, one of :data:`gchgg.linear.MATMUL_BACKENDS`
-            (``"auto"``: oneDNN where this torch has it). Speed only: it is not a hyperparameter,
+            (``"auto"``: oneDNN where this torch has it and the CPU is one of
+            :data:`gchgg.linear.ONEDNN_FASTER`, else torch's BLAS). Speed only: it is not a hyperparameter,
             is not saved, and a state loads under any backend.
         precision: the dtype of those products in :meth:`update`, one of :data:`gchgg.linear.PRECISIONS`:
             ``"float32"`` (default: the math as written), ``"bfloat16"`` (oneDNN's native bfloat16

@@ -2,8 +2,10 @@
 
 PyTorch computes a float32 :class:`torch.nn.Linear` on the CPU with its BLAS (MKL on x86). On
 the AMD EPYC (AVX-512) cores this project runs on, oneDNN's matmul runs the update's 256-wide
-layers about twice as fast as MKL (``python benchmarks/linear.py`` prints both, per layer shape and
-batch size; ``python benchmarks/agent_update.py`` the whole update on each).
+layers about twice as fast as MKL; on an AMD EPYC that torch runs at AVX2 it is slower for every
+product (``python benchmarks/linear.py`` prints both, per layer shape and batch size;
+``python benchmarks/agent_update.py`` the whole update on each), so ``matmul=auto`` takes oneDNN
+only where torch runs at a CPU capability in :data:`ONEDNN_FASTER`.
 
 :class:`OneDNNLinear` *is* an ``nn.Linear`` (same parameters, same state dict, same math): its
 forward and backward compute ``x·Wᵀ + b``, ``∂x = ∂y·W`` and ``∂W = ∂yᵀ·x`` with oneDNN for 2-D
@@ -14,8 +16,8 @@ so values agree to float32 rounding (``tests/test_linear.py``). :func:`use_onedn
 layers of a network in place; :func:`resolve_matmul` turns the ``matmul`` setting into a backend.
 
 oneDNN is reached through ``torch.ops.mkldnn._linear_pointwise``, the dense-input linear that
-TorchInductor's CPU backend calls; where a torch build lacks it, ``matmul=auto`` falls back to
-torch's own BLAS.
+TorchInductor's CPU backend calls; where a torch build lacks it, or the CPU is not one it was
+measured faster on, ``matmul=auto`` uses torch's own BLAS.
 """
 
 from __future__ import annotations
@@ -28,12 +30,21 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["MATMUL_BACKENDS", "MIN_BATCH", "MIN_FEATURES", "PRECISIONS", "OneDNNLinear", "bf16_available",
-           "onednn_available", "products_in", "resolve_matmul", "resolve_precision", "use_onednn"]  # fmt: skip
+__all__ = ["MATMUL_BACKENDS", "MIN_BATCH", "MIN_FEATURES", "ONEDNN_FASTER", "PRECISIONS", "OneDNNLinear",
+           "bf16_available", "cpu_capability", "onednn_available", "products_in", "resolve_matmul",
+           "resolve_precision", "use_onednn"]  # fmt: skip
 
 MATMUL_BACKENDS = ("auto", "onednn", "default")
-"""``auto``: oneDNN where this torch has it, else torch's BLAS; ``onednn``: oneDNN or an error;
-``default``: torch's BLAS (``F.linear``) everywhere."""
+"""``auto``: oneDNN where this torch has it and the CPU is one it was measured faster on
+(:data:`ONEDNN_FASTER`), else torch's BLAS; ``onednn``: oneDNN or an error; ``default``: torch's
+BLAS (``F.linear``) everywhere."""
+
+ONEDNN_FASTER = ("AVX512",)
+"""CPU capabilities (``torch.backends.cpu.get_cpu_capability()``) on which ``matmul=auto`` takes oneDNN:
+those where the whole update was measured faster on it than on torch's BLAS, one thread, batch 256
+(``python benchmarks/agent_update.py --threads 1``; docs/benchmarks.md): AVX512 (AMD EPYC, 2 cores)
+1.59x. Not AVX2 (AMD EPYC, 2 cores): 0.80x, every product of the update slower on oneDNN
+(``benchmarks/linear.py``). Other capabilities are unmeasured and keep torch's BLAS."""
 
 MIN_BATCH = 64
 """Rows from which a batch goes to oneDNN: below it a call's fixed cost outweighs the faster kernel
@@ -204,8 +215,16 @@ def resolve_precision(precision: str, matmul: str = "auto") -> str:
     return precision
 
 
+def cpu_capability() -> str:
+    """The vector instruction set torch's CPU kernels run at here (``"AVX512"``, ``"AVX2"``, ``"DEFAULT"``, …)."""
+    return torch.backends.cpu.get_cpu_capability()
+
+
 def resolve_matmul(matmul: str) -> str:
     """The backend a ``matmul`` setting selects on this machine: ``"onednn"`` or ``"default"``.
+
+    ``auto`` is ``"onednn"`` where this torch build has oneDNN's linear and :func:`cpu_capability`
+    is one of :data:`ONEDNN_FASTER`, else ``"default"`` (torch's BLAS).
 
     Raises:
         ValueError: ``matmul`` is not one of :data:`MATMUL_BACKENDS`.
@@ -215,13 +234,13 @@ def resolve_matmul(matmul: str) -> str:
         raise ValueError(f"matmul must be one of {list(MATMUL_BACKENDS)}, got {matmul!r}")
     if matmul == "default":
         return "default"
-    if onednn_available():
-        return "onednn"
-    if matmul == "onednn":
+    if matmul == "onednn" and not onednn_available():
         raise RuntimeError(
             "matmul='onednn' but this torch build has no oneDNN linear (torch.ops.mkldnn._linear_pointwise); "
             "use matmul=auto (falls back to torch's BLAS) or matmul=default"
         )
+    if matmul == "onednn" or (onednn_available() and cpu_capability() in ONEDNN_FASTER):
+        return "onednn"
     return "default"
 
 

@@ -96,6 +96,20 @@ def test_resolve_matmul_names_the_setting_and_falls_back(monkeypatch):
     assert type(net[0]) is nn.Linear
 
 
+@needs_onednn
+def test_auto_takes_onednn_only_on_cpus_it_was_measured_faster_on(monkeypatch):
+    """AVX-512: oneDNN's update 1.59x torch's BLAS; AVX2: 0.80x (benchmarks/agent_update.py), so auto keeps BLAS."""
+    for capability, backend in (("AVX512", "onednn"), ("AVX2", "default"), ("DEFAULT", "default")):
+        monkeypatch.setattr(linear, "cpu_capability", lambda capability=capability: capability)
+        assert resolve_matmul("auto") == backend, capability
+        assert resolve_matmul("onednn") == "onednn"  # asked for, it is used on any CPU
+        assert resolve_matmul("default") == "default"
+        net = use_onednn(nn.Sequential(nn.Linear(256, 256)), "auto")
+        assert type(net[0]) is (OneDNNLinear if backend == "onednn" else nn.Linear)
+    assert linear.cpu_capability is not None and torch.backends.cpu.get_cpu_capability() in (
+        "DEFAULT", "AVX2", "AVX512", "ZVECTOR", "VSX", "SVE256", "SVE")
+
+
 def _batch(generator: torch.Generator, size: int = 256) -> TensorDict:
     return TensorDict(
         {
