@@ -2,10 +2,10 @@
 
 PyTorch computes a float32 :class:`torch.nn.Linear` on the CPU with its BLAS (MKL on x86). On
 the AMD EPYC (AVX-512) cores this project runs on, oneDNN's matmul runs the update's 256-wide
-layers about twice as fast as MKL; on an AMD EPYC that torch runs at AVX2 it is slower for every
-product (``python benchmarks/linear.py`` prints both, per layer shape and batch size;
-``python benchmarks/agent_update.py`` the whole update on each), so ``matmul=auto`` takes oneDNN
-only where torch runs at a CPU capability in :data:`ONEDNN_FASTER`.
+layers about twice as fast as MKL; on an AMD EPYC that torch runs at AVX2 it is slower (the
+hidden layers' products 0.82–0.93×; ``python benchmarks/linear.py`` prints both, per layer shape
+and batch size; ``python benchmarks/agent_update.py`` the whole update on each), so
+``matmul=auto`` takes oneDNN only where torch runs at a CPU capability in :data:`ONEDNN_FASTER`.
 
 :class:`OneDNNLinear` *is* an ``nn.Linear`` (same parameters, same state dict, same math): its
 forward and backward compute ``x·Wᵀ + b``, ``∂x = ∂y·W`` and ``∂W = ∂yᵀ·x`` with oneDNN for 2-D
@@ -43,8 +43,8 @@ ONEDNN_FASTER = ("AVX512",)
 """CPU capabilities (``torch.backends.cpu.get_cpu_capability()``) on which ``matmul=auto`` takes oneDNN:
 those where the whole update was measured faster on it than on torch's BLAS, one thread, batch 256
 (``python benchmarks/agent_update.py --threads 1``; docs/benchmarks.md): AVX512 (AMD EPYC, 2 cores)
-1.59x. Not AVX2 (AMD EPYC, 2 cores): 0.80x, every product of the update slower on oneDNN
-(``benchmarks/linear.py``). Other capabilities are unmeasured and keep torch's BLAS."""
+1.59x. Not AVX2 (AMD EPYC, 2 cores): 0.85x, every product but one of the update slower on oneDNN
+(``benchmarks/linear.py``: the 256-wide hidden layers' 0.82-0.93x at batch 256). Other capabilities are unmeasured and keep torch's BLAS."""
 
 MIN_BATCH = 64
 """Rows from which a batch goes to oneDNN: below it a call's fixed cost outweighs the faster kernel
