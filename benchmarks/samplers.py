@@ -309,8 +309,11 @@ RECORDED_GOALS = ROOT / "benchmarks" / "data" / "push_new_achieved_goals.npy"
 def recorded_achieved_goals(size: int, generator: torch.Generator) -> torch.Tensor:
     """``size`` goals drawn (with replacement) from ``benchmarks/data/push_new_achieved_goals.npy``:
     20,000 achieved goals drawn uniformly from the first 12 iterations of the push_new ``algo=hgg`` run
-    of seed 1 (commit ccc4ff7; ``benchmarks/record_goals.py`` wrote it), 1,058 of them distinct: an
-    object mostly at rest repeats its position."""
+    of seed 1 (``train.iterations=12 precision=float32 matmul=default`` at d6e9109, on an AVX2 machine;
+    ``benchmarks/record_goals.py`` wrote it; committed, so the figures reproduce from a checkout),
+    1,107 of them distinct: an object mostly at rest repeats its position. The figures in
+    docs/benchmarks.md dated before 2026-12-05 read an earlier recording of the same run (ccc4ff7,
+    1,058 distinct), which was not committed."""
     achieved = torch.from_numpy(np.load(RECORDED_GOALS))
     return achieved[torch.randint(len(achieved), (size,), generator=generator)]
 
