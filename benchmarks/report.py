@@ -72,10 +72,10 @@ def section_name(script: str, capability: str) -> str:
 
 
 def _capability() -> str:
-    """The CPU capability torch's kernels run at (``AVX512``, ``AVX2``, …)."""
-    import torch
+    """The CPU capability torch's kernels run at (``AVX512``, ``AVX2``, …): :func:`gchgg.linear.cpu_capability`."""
+    from gchgg.linear import cpu_capability
 
-    return torch.backends.cpu.get_cpu_capability()
+    return cpu_capability()
 
 
 def _context(script: str) -> str:

@@ -310,10 +310,10 @@ def recorded_achieved_goals(size: int, generator: torch.Generator) -> torch.Tens
     """``size`` goals drawn (with replacement) from ``benchmarks/data/push_new_achieved_goals.npy``:
     20,000 achieved goals drawn uniformly from the first 12 iterations of the push_new ``algo=hgg`` run
     of seed 1 (``train.iterations=12 precision=float32 matmul=default`` at d6e9109, on an AVX2 machine;
-    ``benchmarks/record_goals.py`` wrote it; committed, so the figures reproduce from a checkout),
-    1,107 of them distinct: an object mostly at rest repeats its position. The figures in
+    ``benchmarks/record_goals.py`` writes it from that run's replay files; it is an output, kept out of
+    git), 1,107 of them distinct: an object mostly at rest repeats its position. The figures in
     docs/benchmarks.md dated before 2026-12-05 read an earlier recording of the same run (ccc4ff7,
-    1,058 distinct), which was not committed."""
+    1,058 distinct)."""
     achieved = torch.from_numpy(np.load(RECORDED_GOALS))
     return achieved[torch.randint(len(achieved), (size,), generator=generator)]
 
