@@ -438,7 +438,6 @@ def recorded_search_cost(rounds: int, pool: int = 64) -> None:
             seconds[name].append(time.perf_counter() - clock)
             unproven[name] = stats["rescored"]
     recorded, uniform = (statistics.median(seconds[name]) for name in ("recorded", "uniform"))
-    window = 2 * (2 * search.span * search.block) + 1  # the first rescoring pass: two blocks either side
     distinct = np.unique(np.load(RECORDED_GOALS), axis=0).astype(np.float64)
     nearest = cKDTree(distinct).query(distinct, k=2)[0][:, 1]
     tolerance = _RELATIVE_TOLERANCE  # metres, for coordinates below 1 m
@@ -446,8 +445,9 @@ def recorded_search_cost(rounds: int, pool: int = 64) -> None:
           f"({pool} x {BATCH} goals) takes {recorded * 1e3:.2f} ms on recorded goals, {uniform * 1e3:.2f} ms on "
           f"goals uniform in the field ({recorded / uniform:.1f}x);")
     print(f"  its shortlist leaves {unproven['recorded'] / (pool * BATCH):.1%} of the recorded goals unproven "
-          f"(uniform: {unproven['uniform'] / (pool * BATCH):.1%}), whose nearest neighbours are then read over a "
-          f"window of {window} sorted goals: {np.mean(nearest < tolerance):.0%} of the {len(distinct):,} distinct "
+          f"(uniform: {unproven['uniform'] / (pool * BATCH):.1%}), whose nearest neighbours are then read among the "
+          f"goals within their best distance along the sort axis: {np.mean(nearest < tolerance):.0%} of the "
+          f"{len(distinct):,} distinct "
           f"recorded goals have another within the search's {tolerance:g} m tolerance (an object at rest "
           "jitters), which no straight-line bound can prove")
 

@@ -18,6 +18,7 @@ from gchgg.samplers import (
     ExponentialTradeoff,
     FixedTradeoff,
     GraphCurriculumSampler,
+    NearestNeighbours,
     as_tradeoff,
     nearest_neighbour_distances,
 )
@@ -270,6 +271,22 @@ def test_nearest_neighbours_are_exact_when_most_goals_repeat_a_few(graph, b, blo
         for neighbours in (1, 3):
             fast = nearest_neighbour_distances(goals, metric, neighbours, block=block)
             assert torch.equal(fast, exact), (metric, neighbours)
+
+
+@pytest.mark.parametrize("block", [8, 32])
+def test_nearest_neighbours_are_exact_when_the_nearest_is_far_along_the_sort_axis(block):
+    """Goals on 40 rows 50 mm apart, one goal every 1 mm along the sort axis x, so that each goal's
+    nearest neighbour (its row's next goal, 40 mm along) sits 40 sorted positions away, beyond a
+    window of 3 · 8 goals: the shortlist cannot prove it, and the rescoring must reach it."""
+    g = torch.Generator().manual_seed(block)
+    search = NearestNeighbours(EuclideanMetric(), block=block)
+    search(torch.rand(1, 8, 3, generator=g) * torch.tensor([10.0, 1.0, 1.0]))  # x: the widest spread, the sort axis
+    i = torch.arange(200)
+    rows = torch.stack([i * 1e-3, (i % 40) * 0.05, torch.zeros(200)], -1)
+    goals = torch.stack([rows[torch.randperm(200, generator=g)] for _ in range(3)])
+    stats: dict = {}
+    assert torch.equal(search(goals, stats=stats), brute_force_nearest(goals, EuclideanMetric()))
+    assert stats["rescored"] > (goals.shape[0] * goals.shape[1] // 2 if block == 8 else 0)
 
 
 def test_euclidean_nearest_neighbours_tell_goals_one_float_step_apart():

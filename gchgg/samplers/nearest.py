@@ -215,8 +215,13 @@ class NearestNeighbours:
         # (an object at rest repeats its position; for a graph: goals at one vertex) end up side by side.
         if self._snap:  # goals at one vertex side by side (many vertices share a coordinate)
             order = _sort_order(points[..., self._axis], points[..., ident])
-        else:  # equal goals have equal coordinates: a plain sort puts them side by side (but for exact ties)
-            order = torch.from_numpy(np.argsort(points[..., self._axis].numpy(), -1))  # faster than torch's here
+        else:  # equal goals have equal coordinates: a plain sort puts them side by side, but for ties on the axis
+            axis = points[..., self._axis]
+            order = torch.from_numpy(np.argsort(axis.numpy(), -1))  # faster than torch's here
+            dim = points.shape[-1] - 3
+            if dim > 1 and bool((axis.gather(1, order).diff(dim=1) == 0).any()):  # ties (an object at rest):
+                # broken by the next coordinate, so that equal goals are side by side and found as repeats
+                order = _sort_order(axis, points[..., (self._axis + 1) % dim])
         if goals is not None and not self._snap:
             goals = goals.gather(1, order.unsqueeze(-1).expand(k, b, goals.shape[-1]))
         vertex = points[..., ident].gather(1, order).long()  # [K, B]: -1 off the graph (and 0 for other metrics)
@@ -289,12 +294,7 @@ class NearestNeighbours:
         if stats is not None:
             stats["rescored"] = int(unproven.sum())
         if bool(unproven.any()):
-            # first the goals within two windows' reach in the sorted order (the nearest one is almost
-            # always just outside the window), then, for the few still unproven, all of them
-            reach = 2 * self.span * self.block
-            nearest, unproven = self._rescore(searched, excluded, axis_h, unproven, nearest, pair, reach)
-            if bool(unproven.any()):
-                nearest, _ = self._rescore(searched, excluded, axis_h, unproven, nearest, pair, h)
+            nearest = self._rescore(searched, excluded, axis_h, unproven, nearest, pair)
         if twin is not None:  # a repeat: its head's nearest other goal, or the head itself
             nearest = torch.cat([nearest, nearest.new_full((k, b - h), math.inf)], 1)
             nearest = nearest.index_put((kk, ii), torch.minimum(twin, nearest[kk, head[kk, ii]]))
@@ -302,50 +302,53 @@ class NearestNeighbours:
 
     def _rescore(
         self, points: torch.Tensor, repeat: torch.Tensor, axis: torch.Tensor, unproven: torch.Tensor,
-        nearest: torch.Tensor, pair, reach: int,
-    ):
-        """The unproven goals' entries of ``nearest`` [K, B] read against every goal within ``reach`` sorted
-        positions either side that is nearer in a straight line than the best distance found, except
-        ``repeat`` ones (equal to the goal sorted before them, which is read instead; one beyond the
-        range leaves the goal unproven by the gap). Returns ``nearest`` and the goals still
-        unproven (a goal beyond that range may be nearer; none when ``reach >= B``)."""
+        nearest: torch.Tensor, pair,
+    ) -> torch.Tensor:
+        """``nearest`` [K, B] with the unproven goals' entries made exact: each is read against every goal
+        nearer in a straight line than its best distance so far, except ``repeat`` ones (equal to the
+        goal sorted before them, which is read instead).
+
+        Only goals within that distance (plus the tolerance) along the sort axis can be nearer, and
+        ``axis`` is sorted, so each unproven goal's candidates are one run of sorted positions, its
+        *slab*, as long as it needs to be: a jittering cluster (an object at rest) gives a slab of
+        its few members, a goal beside an obstacle one as wide as its graph distance, and no goal
+        outside the slab is ever left to a second pass."""
         k, b = unproven.shape
         kk, ii = unproven.nonzero(as_tuple=True)  # [U]
-        reach = min(reach, b - 1)
-        width, dim = 2 * reach + 1, points.shape[-1] - 3
-        # Each unproven goal's window of sorted positions ii - reach ... ii + reach, one gather of the
-        # padded positions' sliding windows; padding, the goal itself and repeats are excluded.
-        planes = points.new_zeros(dim, k, b + 2 * reach)  # coordinate planes, padded
-        planes[:, :, reach : reach + b] = points[..., :dim].permute(2, 0, 1)
-        squared = None  # [U, W]: straight line, squared
-        for plane in planes:
-            term = plane.unfold(1, width, 1)[kk, ii].sub_(plane[kk, ii + reach].unsqueeze(1)).square_()
+        dim, tolerance = points.shape[-1] - 3, self._tolerance()
+        best = nearest[kk, ii]
+        # The slab: |x_j - x_i| <= best + 2·tol, a superset of the pairs read below (|p - q| < best + tol)
+        # that float32 rounding of x ± radius cannot cut into. Its ends are counts of the sorted row's goals
+        # at or below x - radius and x + radius (a goal at exactly x - radius is too far to be read).
+        x, radius = axis[kk, ii].unsqueeze(1), (best + 2 * tolerance).unsqueeze(1)
+        row = axis.index_select(0, kk)  # [U, B]
+        first_col = (row <= x - radius).sum(1)
+        counts = (row <= x + radius).sum(1) - first_col  # >= 1: the goal itself
+        goal = kk * b + ii  # [U] flat index of each unproven goal
+        owner = torch.repeat_interleave(counts)  # [C]: the unproven goal of each candidate pair
+        # flat index of each candidate: its slab's first one, plus its place in the slab
+        other = torch.arange(len(owner)).add_((kk * b + first_col - counts.cumsum(0) + counts).index_select(0, owner))
+        coords = points[..., :dim].reshape(k * b, dim).t().contiguous()  # [d, K·B]
+        squared = None  # [C]: straight line, squared
+        for plane in coords:
+            term = plane.index_select(0, other).sub_(plane.index_select(0, goal).index_select(0, owner)).square_()
             squared = term if squared is None else squared.add_(term)
-        skip = repeat.new_ones(k, b + 2 * reach)
-        skip[:, reach : reach + b] = repeat
-        excluded = skip.unfold(1, width, 1)[kk, ii]
-        excluded[:, reach] = True  # not itself
-        squared.masked_fill_(excluded, math.inf)
-        cols = (ii.unsqueeze(1) + torch.arange(-reach, reach + 1)).clamp_(0, b - 1)  # [U, W] sorted positions
-        # First the straight-line nearest goal: for a metric close to the straight line its distance
-        # is (almost) the answer and leaves few goals to read below; clustered goals (an object at
-        # rest) would otherwise have most of the range read.
-        low, first = squared.min(-1, keepdim=True)
-        read = pair(ii, cols.gather(1, first).squeeze(1), kk)
-        # (a row with every candidate excluded has nothing to read)
-        best = torch.where(low.squeeze(1).isfinite(), torch.minimum(nearest[kk, ii], read), nearest[kk, ii])
-        # nearer in a straight line, less the tolerance, than the best: |p - q| - tol < best
-        uu, ww = (squared < best.add(self._tolerance()).square_().unsqueeze(-1)).nonzero(as_tuple=True)
-        if len(uu):
-            best = best.scatter_reduce(0, uu, pair(ii[uu], cols[uu, ww], kk[uu]), reduce="amin")
-            nearest = nearest.index_put((kk, ii), best)
-        # goals beyond the range are at least the gap along the axis away
-        ends = torch.cat([axis.new_full((k, 1), -math.inf), axis, axis.new_full((k, 1), math.inf)], 1)
-        x = axis[kk, ii]
-        gap = torch.minimum(x - ends[kk, (ii - reach).clamp(min=0)], ends[kk, (ii + reach + 2).clamp(max=b + 1)] - x)
-        still = torch.zeros_like(unproven)
-        still[kk, ii] = best > gap - self._tolerance()
-        return nearest, still
+        itself = other == goal.index_select(0, owner)
+        squared.masked_fill_(itself.logical_or_(repeat.reshape(-1).index_select(0, other)), math.inf)
+        batch, cols = other.div(b, rounding_mode="floor"), other.remainder(b)
+        rows = ii.index_select(0, owner)
+        # First the straight-line nearest goal of each: for a metric close to the straight line its
+        # distance is (almost) the answer and leaves few goals to read below.
+        low = squared.new_full((len(goal),), math.inf).scatter_reduce_(0, owner, squared, reduce="amin")
+        first = (squared == low.index_select(0, owner)).logical_and_(squared.isfinite())
+        read = first.nonzero().view(-1)
+        if len(read):
+            best = best.scatter_reduce(0, owner[read], pair(rows[read], cols[read], batch[read]), reduce="amin")
+        # then every goal nearer in a straight line, less the tolerance, than the best: |p - q| - tol < best
+        read = (squared < best.add(tolerance).square_().index_select(0, owner)).logical_and_(~first).nonzero().view(-1)
+        if len(read):
+            best = best.scatter_reduce(0, owner[read], pair(rows[read], cols[read], batch[read]), reduce="amin")
+        return nearest.index_put((kk, ii), best)
 
     def _pairs(self, vertex: torch.Tensor, goals: torch.Tensor | None):
         """``pair(rows, cols, batch)``: metric distance of goal ``rows`` to goals ``cols`` (indices within
