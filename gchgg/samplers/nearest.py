@@ -219,9 +219,13 @@ class NearestNeighbours:
             axis = points[..., self._axis]
             order = torch.from_numpy(np.argsort(axis.numpy(), -1))  # faster than torch's here
             dim = points.shape[-1] - 3
-            if dim > 1 and bool((axis.gather(1, order).diff(dim=1) == 0).any()):  # ties (an object at rest):
+            tied = axis.gather(1, order).diff(dim=1) == 0
+            if dim > 1 and bool(tied.any()):  # ties between goals that differ (an object at rest jitters):
                 # broken by the next coordinate, so that equal goals are side by side and found as repeats
-                order = _sort_order(axis, points[..., (self._axis + 1) % dim])
+                # (ties between equal goals alone, e.g. a row drawn twice, are side by side already)
+                second = points[..., (self._axis + 1) % dim]
+                if bool(tied.logical_and_(second.gather(1, order).diff(dim=1) != 0).any()):
+                    order = _sort_order(axis, second)
         if goals is not None and not self._snap:
             goals = goals.gather(1, order.unsqueeze(-1).expand(k, b, goals.shape[-1]))
         vertex = points[..., ident].gather(1, order).long()  # [K, B]: -1 off the graph (and 0 for other metrics)
