@@ -394,9 +394,10 @@ def plain_greedy(neighbour, similarity, penalty, batch_size, subset_size, seed):
 
 
 @pytest.mark.parametrize("size, batch, k, lam", [(60, 20, 1, 0.0), (60, 58, 1, 1.0), (200, 64, 1, 0.3),
-                                                 (200, 64, 2, 0.3), (150, 148, 2, 0.0)])
+                                                 (300, 200, 1, 0.3), (200, 64, 2, 0.3), (150, 148, 2, 0.0)])
 def test_cher_greedy_chooses_as_a_plain_loop(size, batch, k, lam):
-    """Same draws, same choices; the pool nearly used up (batch = size - 2) exercises the fallback draw."""
+    """Same draws, same choices; the pool nearly used up (batch = size - 2) exercises the fallback draw,
+    and 200 of 300 makes later steps' draws hit earlier winners often (k = 1 follows them in rounds)."""
     from gchgg.samplers.cher import lazier_than_lazy_greedy
 
     for seed in range(3):

@@ -46,10 +46,11 @@ class CherSampler(Sampler):
        measured to the transition's achieved goal: ``target_key="achieved_goal"``).
 
     The B greedy steps are sequential by nature, but each reads only the cover of the entries whose
-    neighbour its candidates are (with k = 1, one on average): :func:`lazier_than_lazy_greedy` scores
-    many steps at once and keeps those no earlier step changed, with the plain loop's choices. A
-    sample costs one k-d tree over the pool's distinct goals (:func:`nearest_other`) and a few
-    vectorised passes (``benchmarks/samplers.py`` times both). Unlike CHER's code the cover is only
+    neighbour its candidates are, and with k = 1 that cover is still 0 whenever the candidate is
+    free, so a candidate's gain is fixed: :func:`lazier_than_lazy_greedy` scores many steps at once
+    and keeps those no earlier step changed, with the plain loop's choices. A sample costs one k-d
+    tree over the pool's distinct goals (:func:`nearest_other`) and a few vectorised passes
+    (``benchmarks/samplers.py`` times both). Unlike CHER's code the cover is only
     updated with the chosen entry (CHER's loop also kept the cover of a better-scoring but finally
     rejected subset member; with k = 1 the gains are the same either way). An unreachable goal
     (``inf``) counts as the largest finite distance of the pool, as in
@@ -238,13 +239,16 @@ def lazier_than_lazy_greedy(
     3. the winner is chosen and each of its in-neighbours' cover rises to s(v, winner).
 
     Step t depends on the steps before it only through the cover of the in-neighbours of its own
-    subset and through which entries are taken. This function runs that loop in vectorised passes:
-    each pass scores up to ``window`` steps at once against the cover the pass starts with, then
-    keeps the longest prefix of steps that no earlier step of the pass could have changed (no
-    earlier winner in their subset, no cover they read raised by an earlier winner). The kept steps
-    are exactly the plain loop's; the next pass starts at the first step that was not kept. With a
-    pool of 5,000 and k = 1 a pass keeps tens of steps, so a batch of 256 takes a handful of
-    passes instead of 256 scans of the pool (``benchmarks/samplers.py``).
+    subset and through which entries are taken. With k = 1 (CHER's setting) not even the cover: an
+    entry's in-neighbours have it as their only neighbour, so their cover stays 0 until it is
+    chosen, and a candidate's gain is the same at every step it is free. The gains are then summed
+    once, and only which entries the earlier steps took is followed from step to step
+    (:func:`_static_gain_greedy`). With k > 1 the loop runs in vectorised passes: each pass scores
+    up to ``window`` steps at once against the cover the pass starts with, then keeps the longest
+    prefix of steps that no earlier step of the pass could have changed (no earlier winner in their
+    subset, no cover they read raised by an earlier winner). The kept steps are exactly the plain
+    loop's; the next pass starts at the first step that was not kept. Either way a batch of 256
+    takes a few vectorised passes instead of 256 scans of the pool (``benchmarks/samplers.py``).
 
     Args:
         neighbour: ``[P, k]`` each pool entry's k nearest other entries (:meth:`CherSampler.similarity_graph`).
@@ -255,7 +259,7 @@ def lazier_than_lazy_greedy(
         generator: the random stream of the subset draws.
 
     Keyword Args:
-        window: steps scored per pass (speed only: the choices do not depend on it).
+        window: steps scored per pass with k > 1 (speed only: the choices do not depend on it).
 
     Returns:
         ``(chosen, cover)``: the ``[batch_size]`` chosen pool indices in the order chosen and the
@@ -263,6 +267,8 @@ def lazier_than_lazy_greedy(
     """
     size = int(neighbour.shape[0])
     draws = torch.randint(size, (batch_size, DRAWS_PER_CANDIDATE * subset_size), generator=generator).numpy()
+    if neighbour.shape[1] == 1:
+        return _static_gain_greedy(neighbour, similarity, penalty, draws, subset_size, generator)
     start, reader, reader_similarity = _in_neighbours(neighbour.numpy(), similarity.numpy().astype(np.float64), size)
     penalty = penalty.numpy().astype(np.float64)
     cover = np.zeros(size)
@@ -303,6 +309,70 @@ def lazier_than_lazy_greedy(
         taken[best[:kept]] = True
         chosen[step: step + kept] = best[:kept]
         step += kept
+    return torch.from_numpy(chosen), torch.from_numpy(cover).to(torch.float32)
+
+
+def _static_gain_greedy(
+    neighbour: torch.Tensor,
+    similarity: torch.Tensor,
+    penalty: torch.Tensor,
+    draws: np.ndarray,
+    subset_size: int,
+    generator: torch.Generator,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`lazier_than_lazy_greedy` with k = 1, where a free candidate's gain never changes.
+
+    Every entry's score, Σ_v s(v, c) over the v whose neighbour is c, minus penalty(c), is summed
+    once (float64, in increasing v as the k > 1 passes sum it). What a step still takes from the
+    steps before it is which entries they took. Starting from "nothing taken", every step's subset
+    and winner is found at once from the winners of the previous round, until a round changes
+    nothing. Step t is right once the steps before it were right a round earlier, so the rounds
+    end, at the plain loop's choices, after a few rounds for a batch of 256 from a pool of 5,000. A step
+    with too few fresh draws takes the generator's fallback draw in order, and the rounds start
+    again after it.
+    """
+    size, batch_size = int(neighbour.shape[0]), len(draws)
+    nearest = neighbour[:, 0].numpy()
+    similarity = similarity[:, 0].numpy().astype(np.float64)
+    score = np.bincount(nearest, similarity, minlength=size) - penalty.numpy().astype(np.float64)
+    keys = (draws + size * np.arange(batch_size)[:, None]).reshape(-1)  # (step, entry), one number
+    order = np.argsort(keys, kind="stable")
+    fresh = np.empty(keys.size, dtype=bool)  # the first of its repeats in the step's draws
+    fresh[order] = np.concatenate([[True], keys[order[1:]] != keys[order[:-1]]])
+    fresh = fresh.reshape(draws.shape)
+    taken = np.zeros(size, dtype=bool)  # by the steps before `step`
+    chosen = np.empty(batch_size, dtype=np.int64)
+    step = 0
+    while step < batch_size:
+        rows, candidates = np.arange(step, batch_size), draws[step:]
+        free = fresh[step:] & ~taken[candidates]
+        winner = np.full(len(rows), -1)
+        while True:
+            first_win = np.full(size, batch_size)  # the first step that took each entry, by this round's winners
+            won = winner >= 0
+            np.minimum.at(first_win, winner[won], rows[won])
+            keep = free & (first_win[candidates] >= rows[:, None])
+            rank = np.cumsum(keep, axis=1)
+            full = rank[:, -1] >= subset_size
+            pick = keep & (rank <= subset_size)
+            subsets = (candidates[pick] if full.all() else candidates[full][pick[full]]).reshape(-1, subset_size)
+            update = np.full(len(rows), -1)
+            update[full] = subsets[np.arange(len(subsets)), np.argmax(score[subsets], axis=1)]
+            if np.array_equal(update, winner):
+                break
+            winner = update
+        short = np.flatnonzero(winner < 0)
+        kept = int(short[0]) if len(short) else len(rows)  # steps before the first short one are the loop's
+        chosen[step: step + kept] = winner[:kept]
+        taken[winner[:kept]] = True
+        step += kept
+        if kept < len(rows):  # too few fresh draws: draw among the entries left, in the generator's order
+            left = torch.from_numpy(~taken).to(torch.float32)
+            subset = torch.multinomial(left, subset_size, replacement=False, generator=generator).numpy()
+            chosen[step] = subset[np.argmax(score[subset])]
+            taken[chosen[step]] = True
+            step += 1
+    cover = np.where(taken[nearest], similarity, 0.0)
     return torch.from_numpy(chosen), torch.from_numpy(cover).to(torch.float32)
 
 
@@ -360,9 +430,15 @@ def nearest_other(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n = len(points)
     points = np.ascontiguousarray(points + 0.0)  # -0.0 as 0.0
     mix = _hash_rows(points)
-    _, first, group, copies = np.unique(mix, return_index=True, return_inverse=True, return_counts=True)
+    order = np.argsort(mix, kind="stable")  # copies side by side, each group's members in increasing index
+    starts = np.flatnonzero(np.concatenate([[True], mix[order[1:]] != mix[order[:-1]]]))
+    first, copies = order[starts], np.diff(starts, append=n)
+    group = np.empty(n, dtype=np.int64)
+    group[order] = np.repeat(np.arange(len(starts)), copies)
     if not np.array_equal(points[first[group]], points):  # a hash collision: group by the coordinates themselves
         _, first, group, copies = np.unique(points, axis=0, return_index=True, return_inverse=True, return_counts=True)
+        order = np.argsort(_small(group), kind="stable")
+        starts = np.cumsum(copies) - copies
     index, distance = np.zeros(n, dtype=np.int64), np.zeros(n)
     single = np.flatnonzero(copies == 1)  # the groups whose nearest point is another position: ask the tree
     if len(first) > 1 and len(single):
@@ -371,26 +447,32 @@ def nearest_other(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lone = first[single]
         index[lone], distance[lone] = first[other[:, 1]], near[:, 1]
     repeated = copies[group] > 1
-    order = np.argsort(_small(group), kind="stable")  # each group's members in increasing index
-    second = order[np.cumsum(copies) - copies + np.minimum(copies - 1, 1)]
+    second = order[np.minimum(starts + 1, n - 1)]  # each group's second member (where it has one)
     own_first = first[group] == np.arange(n)
     index = np.where(repeated, np.where(own_first, second[group], first[group]), index)
     return index, np.where(repeated, 0.0, distance)
 
 
 def _hash_rows(points: np.ndarray) -> np.ndarray:
-    """A 64-bit hash of each row's coordinate bits: MurmurHash3's finaliser of each coordinate (with its
-    position), summed. Goals stored as float32 and widened to float64 have their 29 low bits zero, which
-    a plain weighted sum of the bits keeps zero, so that near-equal goals could collide (a pair recorded
-    on push_new did, ``tests/test_samplers.py``) and send the call to the slow exact grouping."""
-    x = points.view(np.uint64) + np.arange(points.shape[1], dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+    """A 64-bit hash of each row's coordinate bits: each coordinate's bits multiplied in after an
+    xor-shift of the hash so far, then a MurmurHash3-style finaliser. Goals stored as float32 and
+    widened to float64 have their 29 low bits zero, which a plain weighted sum of the bits keeps
+    zero, so that near-equal goals could collide (a pair recorded on push_new did,
+    ``tests/test_samplers.py``) and send the call to the slow exact grouping; the xor-shifts bring
+    the high bits down before each multiplication."""
+    x = points.view(np.uint64)
     with np.errstate(over="ignore"):
-        x ^= x >> np.uint64(33)
-        x *= np.uint64(0xFF51AFD7ED558CCD)
-        x ^= x >> np.uint64(33)
-        x *= np.uint64(0xC4CEB9FE1A85EC53)
-        x ^= x >> np.uint64(33)
-    return x.sum(1)  # wraps around
+        mix = x[:, 0] * _K1
+        for column in range(1, x.shape[1]):
+            mix = (mix ^ (mix >> _S29)) * _K2 + x[:, column] * _K1
+        mix ^= mix >> _S31
+        mix *= _K3
+        mix ^= mix >> _S29
+    return mix  # wraps around
+
+
+_K1, _K2, _K3 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
+_S29, _S31 = np.uint64(29), np.uint64(31)
 
 
 def _small(index: np.ndarray) -> np.ndarray:
