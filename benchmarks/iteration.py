@@ -1,4 +1,4 @@
-"""Seconds per training iteration on push_new for her, ghgg and gchgg, against the floor, and per chunk count C.
+"""Seconds per training iteration on push_new for her, ghgg and gchgg (any ``--algos``), against the floor, and per chunk count C.
 
 An iteration is 50 episodes of 100 steps (collected in ``train.chunks`` chunks), HER relabelling
 into the buffer, a normaliser update per chunk and 1,000 DDPG updates of 256 (plus goal generation
@@ -348,6 +348,8 @@ def main() -> None:
         print(f"her / floor = {seconds['her'] / floor:.2f} (target <= 1.3)")
     if {"her", "gchgg"} <= set(seconds):
         print(f"gchgg / her = {seconds['gchgg'] / seconds['her']:.2f} (target <= 1.25; the paper: 179 s / 52 s = 3.4)")
+    if {"her", "cher"} <= set(seconds):
+        print(f"cher / her = {seconds['cher'] / seconds['her']:.2f} (target <= 1.3)")
     by_chunks, rounds = chunk_seconds(args.chunks, args.iterations, args.updates, args.threads, args.matmul)
     for chunks, (total, phases) in by_chunks.items():
         detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
