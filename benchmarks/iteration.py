@@ -1,4 +1,4 @@
-"""Seconds per training iteration on push_new for her, ghgg and gchgg (any ``--algos``), against the floor, and per chunk count C.
+"""Seconds per push_new training iteration of each of ``--algos`` against the floor, and per chunk count C.
 
 An iteration is 50 episodes of 100 steps (collected in ``train.chunks`` chunks), HER relabelling
 into the buffer, a normaliser update per chunk and 1,000 DDPG updates of 256 (plus goal generation
