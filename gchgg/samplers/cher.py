@@ -267,8 +267,9 @@ def lazier_than_lazy_greedy(
     """
     size = int(neighbour.shape[0])
     draws = torch.randint(size, (batch_size, DRAWS_PER_CANDIDATE * subset_size), generator=generator).numpy()
+    fresh = _first_of_repeats(draws, size)
     if neighbour.shape[1] == 1:
-        return _static_gain_greedy(neighbour, similarity, penalty, draws, subset_size, generator)
+        return _static_gain_greedy(neighbour, similarity, penalty, draws, fresh, subset_size, generator)
     start, reader, reader_similarity = _in_neighbours(neighbour.numpy(), similarity.numpy().astype(np.float64), size)
     penalty = penalty.numpy().astype(np.float64)
     cover = np.zeros(size)
@@ -276,7 +277,8 @@ def lazier_than_lazy_greedy(
     chosen = np.empty(batch_size, dtype=np.int64)
     step = 0
     while step < batch_size:
-        subsets = _first_available(draws[step: step + window], taken, subset_size)
+        window_draws = draws[step: step + window]
+        subsets = _first_available(window_draws, fresh[step: step + window] & ~taken[window_draws], subset_size)
         if subsets[0, 0] < 0:  # too few fresh draws for this step: draw among the entries left
             free = torch.from_numpy(~taken).to(torch.float32)
             subsets[0] = torch.multinomial(free, subset_size, replacement=False, generator=generator).numpy()
@@ -317,6 +319,7 @@ def _static_gain_greedy(
     similarity: torch.Tensor,
     penalty: torch.Tensor,
     draws: np.ndarray,
+    fresh: np.ndarray,
     subset_size: int,
     generator: torch.Generator,
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -335,11 +338,6 @@ def _static_gain_greedy(
     nearest = neighbour[:, 0].numpy()
     similarity = similarity[:, 0].numpy().astype(np.float64)
     score = np.bincount(nearest, similarity, minlength=size) - penalty.numpy().astype(np.float64)
-    keys = (draws + size * np.arange(batch_size)[:, None]).reshape(-1)  # (step, entry), one number
-    order = np.argsort(keys, kind="stable")
-    fresh = np.empty(keys.size, dtype=bool)  # the first of its repeats in the step's draws
-    fresh[order] = np.concatenate([[True], keys[order[1:]] != keys[order[:-1]]])
-    fresh = fresh.reshape(draws.shape)
     taken = np.zeros(size, dtype=bool)  # by the steps before `step`
     chosen = np.empty(batch_size, dtype=np.int64)
     step = 0
@@ -351,13 +349,9 @@ def _static_gain_greedy(
             first_win = np.full(size, batch_size)  # the first step that took each entry, by this round's winners
             won = winner >= 0
             np.minimum.at(first_win, winner[won], rows[won])
-            keep = free & (first_win[candidates] >= rows[:, None])
-            rank = np.cumsum(keep, axis=1)
-            full = rank[:, -1] >= subset_size
-            pick = keep & (rank <= subset_size)
-            subsets = (candidates[pick] if full.all() else candidates[full][pick[full]]).reshape(-1, subset_size)
-            update = np.full(len(rows), -1)
-            update[full] = subsets[np.arange(len(subsets)), np.argmax(score[subsets], axis=1)]
+            subsets = _first_available(candidates, free & (first_win[candidates] >= rows[:, None]), subset_size)
+            best = subsets[np.arange(len(rows)), np.argmax(score[subsets], axis=1)]
+            update = np.where(subsets[:, 0] >= 0, best, -1)  # a short row takes nothing this round
             if np.array_equal(update, winner):
                 break
             winner = update
@@ -393,15 +387,21 @@ def _ragged(start: np.ndarray, items: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return owner, np.arange(len(owner)) + np.repeat(first - (np.cumsum(count) - count), count)
 
 
-def _first_available(draws: np.ndarray, taken: np.ndarray, subset_size: int) -> np.ndarray:
-    """Per row of draws, the first ``subset_size`` distinct entries not taken; rows with too few get −1."""
-    m = draws.shape[1]
-    repeat = ((draws[:, :, None] == draws[:, None, :]) & np.tri(m, m, -1, dtype=bool)).any(-1)
-    keep = ~taken[draws] & ~repeat
-    rank = np.cumsum(keep, axis=1)
+def _first_of_repeats(draws: np.ndarray, size: int) -> np.ndarray:
+    """Per row of draws (entries below ``size``), whether each draw is the first of its repeats in the row."""
+    keys = (draws + size * np.arange(len(draws))[:, None]).reshape(-1)  # (row, entry) as one number
+    order = np.argsort(keys, kind="stable")
+    first = np.empty(keys.size, dtype=bool)
+    first[order] = np.concatenate([[True], keys[order[1:]] != keys[order[:-1]]])
+    return first.reshape(draws.shape)
+
+
+def _first_available(draws: np.ndarray, available: np.ndarray, subset_size: int) -> np.ndarray:
+    """Per row of draws, the first ``subset_size`` draws where ``available``; rows with too few get −1."""
+    rank = np.cumsum(available, axis=1)
     subsets = np.full((len(draws), subset_size), -1, dtype=np.int64)
     full = rank[:, -1] >= subset_size
-    subsets[full] = draws[full][(keep & (rank <= subset_size))[full]].reshape(-1, subset_size)
+    subsets[full] = draws[full][(available & (rank <= subset_size))[full]].reshape(-1, subset_size)
     return subsets
 
 
@@ -453,6 +453,10 @@ def nearest_other(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return index, np.where(repeated, 0.0, distance)
 
 
+_K1, _K2, _K3 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
+_S29, _S31 = np.uint64(29), np.uint64(31)
+
+
 def _hash_rows(points: np.ndarray) -> np.ndarray:
     """A 64-bit hash of each row's coordinate bits: each coordinate's bits multiplied in after an
     xor-shift of the hash so far, then a MurmurHash3-style finaliser. Goals stored as float32 and
@@ -469,10 +473,6 @@ def _hash_rows(points: np.ndarray) -> np.ndarray:
         mix *= _K3
         mix ^= mix >> _S29
     return mix  # wraps around
-
-
-_K1, _K2, _K3 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
-_S29, _S31 = np.uint64(29), np.uint64(31)
 
 
 def _small(index: np.ndarray) -> np.ndarray:
