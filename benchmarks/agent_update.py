@@ -10,7 +10,10 @@ of the training-iteration floor (``benchmarks/iteration.py`` may import it).
     python benchmarks/agent_update.py [--threads 2] [--rounds 15] [--updates 40] [--batch-size 256]
                                       [--min-features 16] [--compile] [--profile]
 
-Both compare with the agent on torch's own BLAS (``matmul="default"``). The script then times that
+Both are timed, in rotating rounds, beside the same agent with ``update="fused"``
+(:mod:`gchgg.fused_update`: the same losses and gradients differentiated by hand), which also says
+whether its networks still equal the autograd agent's bit for bit after every round's updates.
+All three compare with the agent on torch's own BLAS (``matmul="default"``). The script then times that
 update against the faster one, the same agent with its layers on oneDNN (``matmul="onednn"``,
 :mod:`gchgg.linear`), and that one against the same with bfloat16 products (``precision="bfloat16"``,
 on CPUs with native bfloat16), in alternating rounds, and prints how far the two agree on one fixed batch
@@ -145,40 +148,45 @@ def main() -> None:
     plain = [tuple(b.get(k) for k in ("observation", "desired_goal", "action", ("next", "observation"),
                                       ("next", "reward"))) for b in batches]  # fmt: skip
 
+    def make_agent(update: str) -> DDPGAgent:
+        agent = DDPGAgent(obs_dim, goal_dim, action_dim, generator=torch.Generator().manual_seed(0), matmul="default",
+                          update=update)  # fmt: skip
+        agent.update_normalizer(
+            torch.cat([b["observation"] for b in batches]), torch.cat([b["desired_goal"] for b in batches])
+        )
+        return agent
+
     torch.manual_seed(0)
-    agent = DDPGAgent(obs_dim, goal_dim, action_dim, generator=torch.Generator().manual_seed(0), matmul="default")
+    agent, fused = make_agent("autograd"), make_agent("fused")  # the same weights
     bare = BareDDPG(obs_dim, goal_dim, action_dim)
-    agent.update_normalizer(
-        torch.cat([b["observation"] for b in batches]), torch.cat([b["desired_goal"] for b in batches])
-    )
+    runners = {
+        "agent": lambda i: agent.update(batches[i % len(batches)]),
+        "fused": lambda i: fused.update(batches[i % len(batches)]),
+        "bare": lambda i: bare.update(*plain[i % len(plain)]),
+    }
+    times: dict[str, list[float]] = {name: [] for name in runners}
+    for run in runners.values():  # warm-up
+        for i in range(20):
+            run(i)
+    for r in range(args.rounds):  # rotate which goes first, so that none always follows another
+        for name in list(runners)[r % 3:] + list(runners)[: r % 3]:
+            start = time.perf_counter()
+            for i in range(args.updates):
+                runners[name](i)
+            times[name].append((time.perf_counter() - start) / args.updates)
 
-    def run_agent(n: int) -> float:
-        start = time.perf_counter()
-        for i in range(n):
-            agent.update(batches[i % len(batches)])
-        return time.perf_counter() - start
+    def ratio(a: str, b: str) -> float:
+        return statistics.median(x / y for x, y in zip(times[a], times[b], strict=True))
 
-    def run_bare(n: int) -> float:
-        start = time.perf_counter()
-        for i in range(n):
-            bare.update(*plain[i % len(plain)])
-        return time.perf_counter() - start
-
-    run_agent(20), run_bare(20)  # warm-up
-    agent_times, bare_times, ratios = [], [], []
-    for r in range(args.rounds):
-        # alternate which goes first so that neither always follows the other
-        if r % 2:
-            t_bare, t_agent = run_bare(args.updates), run_agent(args.updates)
-        else:
-            t_agent, t_bare = run_agent(args.updates), run_bare(args.updates)
-        agent_times.append(t_agent / args.updates)
-        bare_times.append(t_bare / args.updates)
-        ratios.append(t_agent / t_bare)
+    same = all(torch.equal(x, y) for x, y in zip(agent.loss_module.state_dict().values(),
+                                                 fused.loss_module.state_dict().values(), strict=True))  # fmt: skip
     print(f"threads={torch.get_num_threads()} batch={args.batch_size} rounds={args.rounds}x{args.updates} updates")
-    print(f"agent (TorchRL, TensorDict batch): {statistics.median(agent_times) * 1e3:.3f} ms/update")
-    print(f"bare plain-torch DDPG update:      {statistics.median(bare_times) * 1e3:.3f} ms/update")
-    print(f"ratio agent / bare (median of rounds): {statistics.median(ratios):.3f}")
+    print(f"agent (TorchRL, TensorDict batch): {statistics.median(times['agent']) * 1e3:.3f} ms/update")
+    print(f"bare plain-torch DDPG update:      {statistics.median(times['bare']) * 1e3:.3f} ms/update")
+    print(f"ratio agent / bare (median of rounds): {ratio('agent', 'bare'):.3f}")
+    print(f"agent with update=fused (gchgg.fused_update): {statistics.median(times['fused']) * 1e3:.3f} ms/update; "
+          f"fused / autograd agent {ratio('fused', 'agent'):.3f}, fused / bare {ratio('fused', 'bare'):.3f}; "
+          f"networks equal to the autograd agent's after {20 + args.rounds * args.updates} updates: {same}")
     onednn = copy.deepcopy(agent)  # same weights, normalisers and optimiser state
     use_onednn(onednn.loss_module, "onednn", min_features=args.min_features)
     onednn_update(agent, onednn, batches, args.rounds, args.updates, args.min_features)

@@ -10,6 +10,8 @@ Prints, in one run:
   seconds per ``buffer.sample()`` of 256 for uniform, EBP, graph curriculum (K = 8, EBP candidates,
   default ``draw_ahead=8``: averaged over the samples, as in training) and CHER greedy,
   each as a ratio to uniform (medians over interleaved rounds: the machine is shared and noisy);
+* reading a batch as training does (uniform ``buffer.sample()`` of 256 with ``GoalToNext``) from a
+  ``LazyTensorStorage`` against :class:`gchgg.storage.FieldStorage`, which the trainer's buffer uses;
 * the first EBP sample after a write of one episode: the written rows' energies read against all rows';
 * how often the curriculum's nearest-neighbour shortlist could not prove a goal's nearest neighbour
   (more pairs are then read), and that it always equals the all-pairs value;
@@ -54,7 +56,8 @@ from gchgg.samplers import (  # noqa: E402
     GraphCurriculumSampler,
     nearest_neighbour_distances,
 )
-from gchgg.transforms import EpisodeEnergy, HindsightRelabel  # noqa: E402
+from gchgg.storage import FieldStorage  # noqa: E402
+from gchgg.transforms import EpisodeEnergy, GoalToNext, HindsightRelabel  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -202,6 +205,32 @@ def speed(graph: GoalGraph, episodes: int, rounds: int) -> None:
     cher_speed(storage, rounds)
     ebp_after_a_write(storage, rounds)
     shortlist_check(storage, graph, generator)
+
+
+def storage_read(rounds: int, episodes: int = 1000, repeats: int = 50) -> None:
+    """Seconds per uniform ``buffer.sample()`` of 256 as training reads batches (``GoalToNext`` applied),
+    from a ``LazyTensorStorage`` against :class:`gchgg.storage.FieldStorage` (the same push_new-shaped
+    rows in each), interleaved rounds."""
+    steps = envs.geometry("push_new").episode_length
+    rows = episodes * (K_HER + 1) * steps
+    buffers = {}
+    for name, storage in (("LazyTensorStorage", LazyTensorStorage(rows)), ("FieldStorage", FieldStorage(rows))):
+        fill(storage, episodes, steps, torch.Generator().manual_seed(0))
+        buffers[name] = TensorDictReplayBuffer(storage=storage, batch_size=BATCH, transform=GoalToNext(),
+                                               generator=torch.Generator().manual_seed(1))  # fmt: skip
+    first, second = (buffer.sample() for buffer in buffers.values())  # the same draws: the same rows
+    same = set(first.keys(True, True)) == set(second.keys(True, True)) and bool((first == second).all())
+    times: dict[str, list[float]] = {name: [] for name in buffers}
+    for _ in range(rounds):
+        for name, buffer in buffers.items():
+            start = time.perf_counter()
+            for _ in range(repeats):
+                buffer.sample()
+            times[name].append((time.perf_counter() - start) / repeats)
+    lazy, field = (statistics.median(times[name]) for name in buffers)
+    print(f"reading a batch: uniform buffer.sample() of {BATCH} with GoalToNext from {rows:,} rows, median of "
+          f"{rounds} interleaved rounds: LazyTensorStorage {lazy * 1e3:.3f} ms, FieldStorage {field * 1e3:.3f} ms "
+          f"({field / lazy:.2f}x; the same batch: {same})")
 
 
 def cher_speed(storage: LazyTensorStorage, rounds: int, pool: int = 5000, repeats: int = 10) -> None:
@@ -458,8 +487,12 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--plain-only", action="store_true", help="only the plain-buffer (Euclidean) figures")
     parser.add_argument("--cher-only", action="store_true", help="only CHER against uniform on the push_new buffer")
+    parser.add_argument("--storage-only", action="store_true", help="only reading a batch, by storage")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.storage_only:
+        storage_read(args.rounds)
+        return
     if args.cher_only:
         storage = LazyTensorStorage(args.episodes * (K_HER + 1) * envs.geometry("push_new").episode_length)
         fill(storage, args.episodes, envs.geometry("push_new").episode_length, torch.Generator().manual_seed(0))
@@ -470,6 +503,7 @@ def main() -> None:
         graph = push_new_graph()
         memory(graph)
         speed(graph, args.episodes, args.rounds)
+        storage_read(args.rounds)
     plain_buffer_speed(args.rounds)
     if RECORDED_GOALS.exists():
         plain_buffer_speed(args.rounds, recorded=True)

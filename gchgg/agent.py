@@ -38,10 +38,12 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import MLP
 
+from gchgg.fused_update import FusedDDPGUpdate, unsupported
 from gchgg.linear import MIN_BATCH, products_in, resolve_precision, use_onednn
 from gchgg.validation import check_number
 
 __all__ = [
+    "UPDATES",
     "DDPGAgent",
     "DDPGConfig",
     "GoalConditionedActor",
@@ -253,6 +255,14 @@ def make_ddpg_networks(
     )
 
 
+UPDATES = ("auto", "fused", "autograd")
+"""How :meth:`DDPGAgent.update` computes the gradients: ``autograd`` differentiates
+:class:`HindsightDDPGLoss`; ``fused`` computes the same losses and gradients by hand
+(:class:`gchgg.fused_update.FusedDDPGUpdate`: bit for bit autograd's on torch's BLAS, faster by the
+autograd overhead it skips, ``benchmarks/agent_update.py``); ``auto``: ``fused`` where it applies
+(float32 products on torch's BLAS, i.e. ``matmul`` not resolving to oneDNN), else ``autograd``."""
+
+
 @dataclass(frozen=True)
 class DDPGConfig:
     """The learner's hyperparameters, each declared once, here (defaults: the original code's, REFERENCE.md).
@@ -445,15 +455,15 @@ class HindsightDDPGLoss(nn.Module):
             for weight, target_weight in zip(online.parameters(), target.parameters(), strict=True):
                 target_weight.lerp_(weight, 1 - polyak)
 
+    @property
+    def in_keys(self) -> list:
+        """The batch entries :meth:`forward` reads: observation, goal, action, next observation, reward
+        (what a replay storage must return, e.g. :class:`gchgg.storage.FieldStorage`'s ``read_keys``)."""
+        return [self.observation_key, self.goal_key, self.action_key, ("next", self.observation_key), self.reward_key]
+
     def inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, ...]:
         """The tensors :meth:`losses` takes, read from a batch: observation, goal, action, next observation, reward."""
-        return (
-            tensordict.get(self.observation_key),
-            tensordict.get(self.goal_key),
-            tensordict.get(self.action_key),
-            tensordict.get(("next", self.observation_key)),
-            tensordict.get(self.reward_key),
-        )
+        return tuple(tensordict.get(key) for key in self.in_keys)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         """Losses of a batch: ``loss_actor``, ``loss_value``, and the means of ``pred_value`` and ``target_value``."""
@@ -510,6 +520,8 @@ class DDPGAgent:
             ``"auto"`` (bfloat16 where that is native, what training uses by default; resolved into
             :attr:`precision` by :func:`gchgg.linear.resolve_precision`). Unlike ``matmul`` it changes
             the numbers (rounding), so runs record it; acting stays float32.
+        update: how the gradients are computed, one of :data:`UPDATES` (``"auto"``: by hand where
+            that applies). Speed only, like ``matmul``: the gradients are autograd's.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
     The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
@@ -544,6 +556,7 @@ class DDPGAgent:
         generator: torch.Generator | None = None,
         matmul: str = "auto",
         precision: str = "float32",
+        update: str = "auto",
         **overrides: Any,
     ) -> None:
         unknown = set(overrides) - {f.name for f in fields(DDPGConfig)}
@@ -574,7 +587,27 @@ class DDPGAgent:
         self.observation_normalizer: RunningNormalizer = self.loss_module.actor.observation_normalizer
         self.goal_normalizer: RunningNormalizer = self.loss_module.actor.goal_normalizer
         self._small_batch_actor = SmallBatchActor(self.actor)  # the rollout's one-episode steps
+        self._fused = self._fused_update(update)
         self.num_updates = 0
+
+    def _fused_update(self, update: str) -> FusedDDPGUpdate | None:
+        """The hand-differentiated update ``update`` selects, or ``None`` for autograd's."""
+        if update not in UPDATES:
+            raise ValueError(f"update must be one of {list(UPDATES)}, got {update!r}")
+        if update == "autograd":
+            return None
+        reason = "precision is not float32" if self.precision != "float32" else unsupported(self.loss_module)
+        if reason is None:
+            return FusedDDPGUpdate(self.loss_module)
+        if update == "fused":
+            raise ValueError(f"update='fused' computes float32 products of plain nn.Linear layers, but {reason} "
+                             "(matmul resolving to oneDNN converts the layers); use update=auto or update=autograd")
+        return None
+
+    @property
+    def update_path(self) -> str:
+        """``"fused"`` or ``"autograd"``: how :meth:`update` computes the gradients (``update`` resolved)."""
+        return "autograd" if self._fused is None else "fused"
 
     # -- acting ---------------------------------------------------------------------------------
 
@@ -714,8 +747,9 @@ class DDPGAgent:
             return self._update(batch)
 
     def _update(self, batch: TensorDictBase) -> dict[str, float]:
-        loss = self.loss_module
-        loss_actor, loss_value, pred_value, target_value = loss.losses(*loss.inputs(batch))
+        inputs = self.loss_module.inputs(batch)
+        losses = self.loss_module.losses if self._fused is None else self._fused.forward
+        loss_actor, loss_value, pred_value, target_value = losses(*inputs)
         values = torch.stack([loss_actor.detach(), loss_value.detach(), pred_value.mean(), target_value.mean()])
         values = values.tolist()
         if not all(math.isfinite(v) for v in values[:2]):
@@ -723,11 +757,14 @@ class DDPGAgent:
                 f"DDPG update {self.num_updates + 1}: loss_actor={values[0]}, loss_value={values[1]} is not "
                 "finite; check the batch for NaN/inf (observations, goals, rewards) and the learning rates"
             )
-        self.actor_optimizer.zero_grad(set_to_none=True)
-        self.critic_optimizer.zero_grad(set_to_none=True)
-        # the actor loss sees the critic's weights detached and the critic loss does not involve
-        # the online actor: one backward gives each network its own gradient
-        (loss_actor + loss_value).backward()
+        if self._fused is not None:
+            self._fused.backward()  # overwrites every .grad
+        else:
+            self.actor_optimizer.zero_grad(set_to_none=True)
+            self.critic_optimizer.zero_grad(set_to_none=True)
+            # the actor loss sees the critic's weights detached and the critic loss does not involve
+            # the online actor: one backward gives each network its own gradient
+            (loss_actor + loss_value).backward()
         self.actor_optimizer.step()
         self.critic_optimizer.step()
         self.num_updates += 1

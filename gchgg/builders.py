@@ -13,7 +13,7 @@ import inspect
 from collections.abc import Callable
 
 import torch
-from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs.transforms import Compose
 
 from gchgg.graph import USER_CACHE_DIR, EuclideanMetric, GoalGraph, check_density_criterion
@@ -27,6 +27,7 @@ from gchgg.samplers import (
     GraphCurriculumSampler,
 )
 from gchgg.samplers.curriculum import SCALES
+from gchgg.storage import FieldStorage
 from gchgg.transforms import DEFAULT_DROP_KEYS, EpisodeEnergy, GoalToNext, HindsightRelabel, ObservationNoise
 from gchgg.validation import check_choice
 
@@ -126,11 +127,12 @@ def make_replay_buffer(
     """An episodic FIFO of relabelled transitions: ``capacity_episodes`` whole episodes.
 
     Every episode occupies ``transitions_per_episode`` = (k+1)·T consecutive rows, so the FIFO
-    drops whole episodes. Sampled batches get ``("next", "desired_goal")`` back (:class:`GoalToNext`).
+    drops whole episodes. Sampled batches get ``("next", "desired_goal")`` back (:class:`GoalToNext`);
+    their rows are read field by field (:class:`gchgg.storage.FieldStorage`).
     """
     kwargs = {} if sampler is None else {"sampler": sampler}
     return TensorDictReplayBuffer(
-        storage=LazyTensorStorage(capacity_episodes * transitions_per_episode),
+        storage=FieldStorage(capacity_episodes * transitions_per_episode),
         batch_size=batch_size,
         transform=GoalToNext(),
         generator=generator,

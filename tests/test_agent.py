@@ -16,13 +16,7 @@ from gchgg.agent import DDPGAgent, HindsightDDPGLoss, RunningNormalizer, make_dd
 OBS, GOAL, ACT = 6, 3, 2
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Small networks on a shared 2-core machine: one intra-op thread is several times faster."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def make_agent(seed: int = 0, **kwargs) -> DDPGAgent:

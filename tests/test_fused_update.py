@@ -1,0 +1,150 @@
+"""Tests of gchgg.fused_update: the hand-differentiated DDPG update equals autograd's on the loss module,
+bit for bit, and the agent chooses it only where it applies."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torch import nn
+
+from gchgg.agent import DDPGAgent, HindsightDDPGLoss, make_ddpg_networks
+from gchgg.fused_update import FusedDDPGUpdate, unsupported
+from gchgg.linear import onednn_available
+
+OBS, GOAL, ACT = 6, 3, 2
+
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def tensors(size: int, seed: int) -> tuple[torch.Tensor, ...]:
+    g = torch.Generator().manual_seed(seed)
+    return (
+        torch.randn(size, OBS, generator=g) * 2 + 1,
+        torch.randn(size, GOAL, generator=g),
+        torch.rand(size, ACT, generator=g) * 2 - 1,
+        torch.randn(size, OBS, generator=g) * 2 + 1,
+        -(torch.rand(size, 1, generator=g) < 0.5).float(),
+    )
+
+
+def batch_of(values: tuple[torch.Tensor, ...]) -> TensorDict:
+    obs, goal, action, next_obs, reward = values
+    return TensorDict({"observation": obs, "desired_goal": goal, "action": action,
+                       "next": {"observation": next_obs, "reward": reward}}, [len(obs)])  # fmt: skip
+
+
+def loss_module(hidden, seed: int = 0, **kwargs) -> HindsightDDPGLoss:
+    g = torch.Generator().manual_seed(seed)
+    actor, critic = make_ddpg_networks(OBS, GOAL, ACT, hidden, generator=g)
+    loss = HindsightDDPGLoss(actor, critic, **kwargs)
+    obs, goal, *_ = tensors(64, seed + 100)
+    loss.actor.observation_normalizer.update(obs)
+    loss.actor.goal_normalizer.update(goal)
+    with torch.no_grad():  # target networks apart from the online ones, as after some updates
+        for p in list(loss.target_actor.parameters()) + list(loss.target_critic.parameters()):
+            p.add_(torch.randn(p.shape, generator=g) * 0.05)
+    return loss
+
+
+def autograd_gradients(loss: HindsightDDPGLoss, values) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """The reference: the loss module's losses, differentiated by autograd from zeroed gradients."""
+    parameters = list(loss.actor.parameters()) + list(loss.critic.parameters())
+    for p in parameters:
+        p.grad = None
+    out = loss.losses(*values)
+    (out[0] + out[1]).backward()
+    grads = [p.grad.clone() for p in parameters]
+    for p in parameters:
+        p.grad = None
+    return [o.detach() for o in out], grads
+
+
+@pytest.mark.parametrize(
+    "hidden, size, settings",
+    [
+        ((32, 32), 16, {}),
+        ((16,), 5, {"action_l2": 0.0}),
+        ((24, 8, 16), 64, {"clip_return": False, "gamma": 0.9, "action_l2": 0.3}),
+    ],
+)
+def test_fused_losses_and_gradients_are_autograds_bit_for_bit(hidden, size, settings):
+    loss = loss_module(hidden, **settings)
+    values = tensors(size, seed=1)
+    reference_out, reference_grads = autograd_gradients(loss, values)
+
+    fused = FusedDDPGUpdate(loss)
+    for p in list(loss.actor.parameters()) + list(loss.critic.parameters()):  # stale gradients are overwritten
+        p.grad = torch.full_like(p, 7.0)
+    out = fused.forward(*values)
+    fused.backward()
+    grads = [p.grad for p in list(loss.actor.parameters()) + list(loss.critic.parameters())]
+    for name, a, b in zip(("loss_actor", "loss_value", "pred_value", "target_value"), reference_out, out, strict=True):
+        assert torch.equal(a, b), name
+        assert not b.requires_grad
+    for i, (a, b) in enumerate(zip(reference_grads, grads, strict=True)):
+        assert torch.equal(a, b), f"gradient {i}: largest difference {(a - b).abs().max().item():.3g}"
+    # nothing reached the target networks or the normalisers
+    assert all(p.grad is None for p in list(loss.target_actor.parameters()) + list(loss.target_critic.parameters()))
+
+
+def test_agent_with_fused_updates_trains_exactly_as_with_autograd():
+    agents = {update: DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), generator=torch.Generator().manual_seed(0),
+                                matmul="default", update=update)
+              for update in ("fused", "autograd")}  # fmt: skip
+    assert {a.update_path for a in agents.values()} == {"fused", "autograd"}
+    for agent in agents.values():
+        agent.update_normalizer(*tensors(200, 5)[:2])
+    for step in range(45):  # across two target-network updates (every 20th)
+        batch = batch_of(tensors(32, 10 + step))
+        results = [agent.update(batch) for agent in agents.values()]
+        assert results[0] == results[1]
+    fused, reference = (agents[k].state_dict() for k in ("fused", "autograd"))
+    for key, value in reference["networks"].items():
+        assert torch.equal(fused["networks"][key], value), key
+    for which in ("actor_optimizer", "critic_optimizer"):
+        for index, state in reference[which]["state"].items():
+            for name, value in state.items():
+                assert torch.equal(fused[which]["state"][index][name], value), (which, index, name)
+
+
+def test_auto_takes_the_fused_update_only_where_it_applies():
+    agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default")  # update="auto"
+    assert agent.update_path == "fused"
+    assert DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", update="autograd").update_path == "autograd"
+    if onednn_available():  # oneDNN layers keep autograd (their products are oneDNN's)
+        assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn").update_path == "autograd"
+        with pytest.raises(ValueError, match="update='fused'.*OneDNNLinear"):
+            DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn", update="fused")
+    with pytest.raises(ValueError, match=r"update must be one of \['auto', 'fused', 'autograd'\], got 'manual'"):
+        DDPGAgent(OBS, GOAL, ACT, hidden=(16,), update="manual")
+
+
+def test_unsupported_networks_are_named():
+    loss = loss_module((16,))
+    assert unsupported(loss) is None
+    loss.critic.mlp[1] = nn.Tanh()
+    assert unsupported(loss) == "the critic's mlp: layer 1 is Tanh, not ReLU"
+    with pytest.raises(ValueError, match="ReLU MLPs of plain float32 nn.Linear layers: the critic's mlp"):
+        FusedDDPGUpdate(loss)
+    loss = loss_module((16,))
+    loss.target_actor.mlp[0].bias = None
+    assert unsupported(loss) == "the target_actor's mlp: layer 0 is not a float32 CPU nn.Linear with a bias"
+
+
+def test_backward_needs_a_forward_and_runs_once_per_forward():
+    fused = FusedDDPGUpdate(loss_module((16,)))
+    with pytest.raises(RuntimeError, match="needs a forward"):
+        fused.backward()
+    fused.forward(*tensors(8, 2))
+    fused.backward()
+    with pytest.raises(RuntimeError, match="runs once per forward"):
+        fused.backward()
+
+
+def test_a_reward_of_the_wrong_shape_is_refused_like_the_loss_module_does():
+    values = list(tensors(8, 3))
+    values[4] = values[4].reshape(-1)
+    with pytest.raises(ValueError, match=r"the reward must be \[B, 1\]"):
+        FusedDDPGUpdate(loss_module((16,))).forward(*values)
