@@ -18,9 +18,10 @@ The agent follows the reference implementation's defaults (``REFERENCE.md``, "Tr
 ``DDPGLoss`` has neither the clipped bootstrap nor the action penalty); :class:`DDPGAgent` adds the
 optimisers, the target-update schedule, exploration, the value function HGG needs and a complete
 ``state_dict``. Its :meth:`DDPGAgent.update` reads the batch's tensors once and runs the loss's
-tensor path (``benchmarks/agent_update.py`` times it). Its ``matmul`` argument picks who computes
-the wide layers' matrix products (:mod:`gchgg.linear`: oneDNN where measured faster); it changes
-speed, not the math.
+tensor path, differentiated by autograd or, where the products are float32 on torch's BLAS, by
+hand with the same result bit for bit (:mod:`gchgg.fused_update`; ``benchmarks/agent_update.py``
+times both). Its ``matmul`` argument picks who computes the wide layers' matrix products
+(:mod:`gchgg.linear`: oneDNN where measured faster); it changes speed, not the math.
 """
 
 from __future__ import annotations
@@ -458,7 +459,7 @@ class HindsightDDPGLoss(nn.Module):
     @property
     def in_keys(self) -> list:
         """The batch entries :meth:`forward` reads: observation, goal, action, next observation, reward
-        (what a replay storage must return, e.g. :class:`gchgg.storage.FieldStorage`'s ``read_keys``)."""
+        (TorchRL's loss-module convention)."""
         return [self.observation_key, self.goal_key, self.action_key, ("next", self.observation_key), self.reward_key]
 
     def inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, ...]:
