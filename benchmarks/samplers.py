@@ -405,10 +405,12 @@ def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False)
         print(f"  {threads} thread(s) ({label}): uniform {uniform * 1e3:.3f} ms, curriculum {seconds * 1e3:.3f} ms "
               f"= {seconds / uniform:.1f} x uniform (target <= 5); the sampler's own sample() "
               f"{statistics.median(alone[threads]) * 1e3:.3f} ms")
-    if len(thread_counts) > 1:
-        one, default = (statistics.median(alone[t]) for t in thread_counts)
-        print(f"  sampler's own sample() at {thread_counts[-1]} threads / at 1 thread = {default / one:.2f} "
-              "(target <= 1: it runs on one thread whatever the caller's count)")
+    if len(thread_counts) > 1:  # per round, the two thread counts ran back to back: their ratio, and its spread
+        ratios = sorted(more / one for one, more in zip(alone[1], alone[thread_counts[-1]], strict=True))
+        low, high = np.quantile(ratios, [0.25, 0.75])
+        print(f"  sampler's own sample() at {thread_counts[-1]} threads / at 1 thread = "
+              f"{statistics.median(ratios):.2f}, the rounds' interquartile range {low:.2f}-{high:.2f} "
+              "(target <= 1: it runs on one thread whatever the caller's count, so the rounds scatter around 1)")
     if recorded:
         return
     # A loop that writes before every sample (TorchRL collectors extend, then the loss samples).
