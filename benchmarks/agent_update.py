@@ -10,7 +10,7 @@ of the training-iteration floor (``benchmarks/iteration.py`` may import it).
     python benchmarks/agent_update.py [--threads 2] [--rounds 15] [--updates 40] [--batch-size 256]
                                       [--min-features 16] [--compile] [--profile]
 
-Both are timed, in rotating rounds, beside the same agent with ``update="fused"``
+Both are timed, in rotating rounds, beside the same agent with ``gradients="fused"``
 (:mod:`gchgg.fused_update`: the same losses and gradients differentiated by hand), which also says
 whether its networks still equal the autograd agent's bit for bit after every round's updates.
 All three compare with the agent on torch's own BLAS (``matmul="default"``). The script then times that
@@ -148,9 +148,9 @@ def main() -> None:
     plain = [tuple(b.get(k) for k in ("observation", "desired_goal", "action", ("next", "observation"),
                                       ("next", "reward"))) for b in batches]  # fmt: skip
 
-    def make_agent(update: str) -> DDPGAgent:
+    def make_agent(gradients: str) -> DDPGAgent:
         agent = DDPGAgent(obs_dim, goal_dim, action_dim, generator=torch.Generator().manual_seed(0), matmul="default",
-                          update=update)  # fmt: skip
+                          gradients=gradients)  # fmt: skip
         agent.update_normalizer(
             torch.cat([b["observation"] for b in batches]), torch.cat([b["desired_goal"] for b in batches])
         )
@@ -184,7 +184,7 @@ def main() -> None:
     print(f"agent (TorchRL, TensorDict batch): {statistics.median(times['agent']) * 1e3:.3f} ms/update")
     print(f"bare plain-torch DDPG update:      {statistics.median(times['bare']) * 1e3:.3f} ms/update")
     print(f"ratio agent / bare (median of rounds): {ratio('agent', 'bare'):.3f}")
-    print(f"agent with update=fused (gchgg.fused_update): {statistics.median(times['fused']) * 1e3:.3f} ms/update; "
+    print(f"agent with gradients=fused (gchgg.fused_update): {statistics.median(times['fused']) * 1e3:.3f} ms/update; "
           f"fused / autograd agent {ratio('fused', 'agent'):.3f}, fused / bare {ratio('fused', 'bare'):.3f}; "
           f"networks equal to the autograd agent's after {20 + args.rounds * args.updates} updates: {same}")
     onednn = copy.deepcopy(agent)  # same weights, normalisers and optimiser state

@@ -44,7 +44,7 @@ from gchgg.linear import MIN_BATCH, products_in, resolve_precision, use_onednn
 from gchgg.validation import check_number
 
 __all__ = [
-    "UPDATES",
+    "GRADIENTS",
     "DDPGAgent",
     "DDPGConfig",
     "GoalConditionedActor",
@@ -256,8 +256,8 @@ def make_ddpg_networks(
     )
 
 
-UPDATES = ("auto", "fused", "autograd")
-"""How :meth:`DDPGAgent.update` computes the gradients: ``autograd`` differentiates
+GRADIENTS = ("auto", "fused", "autograd")
+"""How :meth:`DDPGAgent.update` computes the gradients (the ``gradients`` setting): ``autograd`` differentiates
 :class:`HindsightDDPGLoss`; ``fused`` computes the same losses and gradients by hand
 (:class:`gchgg.fused_update.FusedDDPGUpdate`: bit for bit autograd's on torch's BLAS, faster by the
 autograd overhead it skips, ``benchmarks/agent_update.py``); ``auto``: ``fused`` where it applies
@@ -521,8 +521,9 @@ class DDPGAgent:
             ``"auto"`` (bfloat16 where that is native, what training uses by default; resolved into
             :attr:`precision` by :func:`gchgg.linear.resolve_precision`). Unlike ``matmul`` it changes
             the numbers (rounding), so runs record it; acting stays float32.
-        update: how the gradients are computed, one of :data:`UPDATES` (``"auto"``: by hand where
-            that applies). Speed only, like ``matmul``: the gradients are autograd's.
+        gradients: how :meth:`update` computes the gradients, one of :data:`GRADIENTS` (``"auto"``: by
+            hand where that applies; resolved into :attr:`gradients`). Speed only, like ``matmul``:
+            the gradients are autograd's.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
     The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
@@ -557,7 +558,7 @@ class DDPGAgent:
         generator: torch.Generator | None = None,
         matmul: str = "auto",
         precision: str = "float32",
-        update: str = "auto",
+        gradients: str = "auto",
         **overrides: Any,
     ) -> None:
         unknown = set(overrides) - {f.name for f in fields(DDPGConfig)}
@@ -588,27 +589,23 @@ class DDPGAgent:
         self.observation_normalizer: RunningNormalizer = self.loss_module.actor.observation_normalizer
         self.goal_normalizer: RunningNormalizer = self.loss_module.actor.goal_normalizer
         self._small_batch_actor = SmallBatchActor(self.actor)  # the rollout's one-episode steps
-        self._fused = self._fused_update(update)
+        self._fused = self._fused_update(gradients)
+        self.gradients = "autograd" if self._fused is None else "fused"  # the setting resolved
         self.num_updates = 0
 
-    def _fused_update(self, update: str) -> FusedDDPGUpdate | None:
-        """The hand-differentiated update ``update`` selects, or ``None`` for autograd's."""
-        if update not in UPDATES:
-            raise ValueError(f"update must be one of {list(UPDATES)}, got {update!r}")
-        if update == "autograd":
+    def _fused_update(self, gradients: str) -> FusedDDPGUpdate | None:
+        """The hand-differentiated update ``gradients`` selects, or ``None`` for autograd's."""
+        if gradients not in GRADIENTS:
+            raise ValueError(f"gradients must be one of {list(GRADIENTS)}, got {gradients!r}")
+        if gradients == "autograd":
             return None
         reason = "precision is not float32" if self.precision != "float32" else unsupported(self.loss_module)
         if reason is None:
             return FusedDDPGUpdate(self.loss_module)
-        if update == "fused":
-            raise ValueError(f"update='fused' computes float32 products of plain nn.Linear layers, but {reason} "
-                             "(matmul resolving to oneDNN converts the layers); use update=auto or update=autograd")
+        if gradients == "fused":
+            raise ValueError(f"gradients='fused' computes float32 products of plain nn.Linear layers, but {reason} "
+                             "(matmul resolving to oneDNN converts the layers); use gradients=auto or autograd")
         return None
-
-    @property
-    def update_path(self) -> str:
-        """``"fused"`` or ``"autograd"``: how :meth:`update` computes the gradients (``update`` resolved)."""
-        return "autograd" if self._fused is None else "fused"
 
     # -- acting ---------------------------------------------------------------------------------
 

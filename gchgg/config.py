@@ -33,7 +33,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from gchgg import loggers
-from gchgg.agent import DDPGConfig
+from gchgg.agent import GRADIENTS, DDPGConfig
 from gchgg.builders import GOAL_GENERATORS, METRICS, SAMPLERS
 from gchgg.graph import GoalGraph
 from gchgg.hgg import HGGGoalGenerator, TrajectoryPool
@@ -312,6 +312,7 @@ class RunConfig:
     threads: int = 1  # torch CPU threads (1: fastest for these small nets on a shared machine; 0: torch's)
     matmul: str = "auto"  # the wide layers' products: auto (oneDNN where faster: ONEDNN_FASTER) | onednn | default
     precision: str = "auto"  # their dtype in updates: auto (bfloat16 where native) | float32 | bfloat16
+    gradients: str = "auto"  # of the updates: auto (by hand where the products are float32 BLAS) | fused | autograd
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     graph: GraphConfig | None = None  # the graph=default group; null where no metric is the graph
@@ -336,6 +337,7 @@ class RunConfig:
         _positive("run", self, ("threads",), allow_zero=True)
         check_choice("matmul", self.matmul, MATMUL_BACKENDS)
         check_choice("precision", self.precision, PRECISIONS)
+        check_choice("gradients", self.gradients, GRADIENTS)
 
 
 def register() -> None:

@@ -72,13 +72,15 @@ def versions() -> dict[str, str]:
     return out
 
 
-def startup_record(cfg: DictConfig) -> str:
-    """The run's resolved settings and the installed versions, as logged once at start-up."""
+def startup_record(cfg: DictConfig, gradients: str | None = None) -> str:
+    """The run's resolved settings and the installed versions, as logged once at start-up
+    (``gradients``: the agent's resolved ``gradients`` setting, :attr:`gchgg.agent.DDPGAgent.gradients`)."""
     packages = ", ".join(f"{k} {v}" for k, v in versions().items())
     matmul, precision = cfg.matmul, cfg.precision
+    resolved = f"gradients: {cfg.get('gradients', 'auto')} -> {gradients}\n" if gradients else ""
     return (
         f"versions: {packages}\nmatmul: {matmul} -> {resolve_matmul(matmul)}\n"
-        f"precision: {precision} -> {resolve_precision(precision, matmul)}\n"
+        f"precision: {precision} -> {resolve_precision(precision, matmul)}\n{resolved}"
         f"resolved config:\n{OmegaConf.to_yaml(cfg, resolve=True)}"
     )
 

@@ -263,7 +263,7 @@ def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
         checkpoint.remove_temporaries(folder)
     trainer = Trainer(cfg, run_dir)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
-    log.info(startup_record(cfg))
+    log.info(startup_record(cfg, trainer.agent.gradients))
     if resume and path.exists():
         trainer.load_state_dict(checkpoint.load(path))
         print(f"resumed {run_dir} after iteration {trainer.iteration}")

@@ -91,9 +91,9 @@ def test_fused_losses_and_gradients_are_autograds_bit_for_bit(hidden, size, sett
 
 def test_agent_with_fused_updates_trains_exactly_as_with_autograd():
     agents = {update: DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), generator=torch.Generator().manual_seed(0),
-                                matmul="default", update=update)
+                                matmul="default", gradients=update)
               for update in ("fused", "autograd")}  # fmt: skip
-    assert {a.update_path for a in agents.values()} == {"fused", "autograd"}
+    assert {a.gradients for a in agents.values()} == {"fused", "autograd"}
     for agent in agents.values():
         agent.update_normalizer(*tensors(200, 5)[:2])
     for step in range(45):  # across two target-network updates (every 20th)
@@ -110,15 +110,15 @@ def test_agent_with_fused_updates_trains_exactly_as_with_autograd():
 
 
 def test_auto_takes_the_fused_update_only_where_it_applies():
-    agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default")  # update="auto"
-    assert agent.update_path == "fused"
-    assert DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", update="autograd").update_path == "autograd"
+    agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default")  # gradients="auto"
+    assert agent.gradients == "fused"
+    assert DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd").gradients == "autograd"
     if onednn_available():  # oneDNN layers keep autograd (their products are oneDNN's)
-        assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn").update_path == "autograd"
-        with pytest.raises(ValueError, match="update='fused'.*OneDNNLinear"):
-            DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn", update="fused")
-    with pytest.raises(ValueError, match=r"update must be one of \['auto', 'fused', 'autograd'\], got 'manual'"):
-        DDPGAgent(OBS, GOAL, ACT, hidden=(16,), update="manual")
+        assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn").gradients == "autograd"
+        with pytest.raises(ValueError, match="gradients='fused'.*OneDNNLinear"):
+            DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn", gradients="fused")
+    with pytest.raises(ValueError, match=r"gradients must be one of \['auto', 'fused', 'autograd'\], got 'manual'"):
+        DDPGAgent(OBS, GOAL, ACT, hidden=(16,), gradients="manual")
 
 
 def test_unsupported_networks_are_named():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import logging
 import sys
 from pathlib import Path
 
@@ -183,6 +184,7 @@ def test_corrupt_checkpoint_is_an_error_that_says_so(tmp_path):
         ("graph.n=[31,3,11]", "spacing"),
         ("graph.margin=-0.1", "margin"),
         ("matmul=mkl", "matmul must be one of 'auto', 'onednn', 'default', got 'mkl'"),
+        ("gradients=manual", "gradients must be one of 'auto', 'fused', 'autograd', got 'manual'"),
     ],
 )
 def test_bad_configuration_fails_before_training_naming_the_setting(override, message, tmp_path):
@@ -190,6 +192,20 @@ def test_bad_configuration_fails_before_training_naming_the_setting(override, me
     with pytest.raises(ValueError, match=message):
         train.run(cfg, tmp_path / "run")
     assert not (tmp_path / "run" / "metrics.csv").exists()
+
+
+def test_runs_with_the_update_by_hand_and_by_autograd_write_the_same_metrics(tmp_path, caplog):
+    """``gradients`` is speed only: a tiny gchgg run writes the same metrics either way, and logs the path taken."""
+    rows = {}
+    for update in ("fused", "autograd"):
+        overrides = ["env=push_new", "algo=gchgg", *tiny(tmp_path, iterations=2), "train.updates=8",
+                     "matmul=default", "precision=float32", f"gradients={update}"]  # fmt: skip
+        with caplog.at_level(logging.INFO, logger="gchgg.train"):
+            train.run(config(overrides), tmp_path / update)
+        rows[update] = [{k: v for k, v in row.items() if not k.startswith("seconds_")}
+                        for row in read_metrics(tmp_path / update)]  # fmt: skip
+        assert f"gradients: {update} -> {update}" in caplog.text
+    assert rows["fused"] == rows["autograd"] and float(rows["fused"][-1]["loss_value"]) > 0
 
 
 @pytest.mark.parametrize("override, choice", [("algo=sac", "gchgg"), ("env=fetch", "push_new")])
