@@ -43,7 +43,7 @@ ONEDNN_FASTER = ("AVX512",)
 """CPU capabilities (``torch.backends.cpu.get_cpu_capability()``) on which ``matmul=auto`` takes oneDNN:
 those where the whole update was measured faster on it than on torch's BLAS, one thread, batch 256
 (``python benchmarks/agent_update.py --threads 1``; docs/benchmarks.md): AVX512 (AMD EPYC, 2 cores)
-1.59x. Not AVX2 (AMD EPYC, 2 cores): 0.79x, every product but one of the update slower on oneDNN
+1.59x. Not AVX2 (AMD EPYC, 2 cores): 0.80x, every product but one of the update slower on oneDNN
 (``benchmarks/linear.py``: the 256-wide hidden layers' 0.82-0.93x at batch 256). Other
 capabilities are unmeasured and keep torch's BLAS."""
 

@@ -98,7 +98,7 @@ def test_resolve_matmul_names_the_setting_and_falls_back(monkeypatch):
 
 @needs_onednn
 def test_auto_takes_onednn_only_on_cpus_it_was_measured_faster_on(monkeypatch):
-    """AVX-512: oneDNN's update 1.59x torch's BLAS; AVX2: 0.79x (benchmarks/agent_update.py), so auto keeps BLAS."""
+    """AVX-512: oneDNN's update 1.59x torch's BLAS; AVX2: 0.80x (benchmarks/agent_update.py), so auto keeps BLAS."""
     for capability, backend in (("AVX512", "onednn"), ("AVX2", "default"), ("DEFAULT", "default")):
         monkeypatch.setattr(linear, "cpu_capability", lambda capability=capability: capability)
         assert resolve_matmul("auto") == backend, capability
