@@ -20,7 +20,10 @@ on CPUs with native bfloat16), in alternating rounds, and prints how far the two
 (losses and gradients, relative to their largest entry) and how far their weights and actions drift
 apart over the run's updates, beside the drift of a torch-BLAS twin fed each batch in reverse row
 order: the same math, other float32 rounding, which training amplifies in both. ``--compile`` also
-times the same agent with ``torch.compile`` on its loss (a candidate that lost) against today's;
+times the same agent with ``torch.compile`` on its loss (a candidate that lost) against today's.
+Last, the oneDNN update in float32 and in bfloat16, each by autograd and with ``gradients="fused"``,
+in rotating rounds beside the bare float32 update (``fused / bare fp32``: below 1 is an update faster
+than the fp32 floor's);
 ``--profile`` prints both updates' top operators.
 """
 
@@ -191,6 +194,7 @@ def main() -> None:
     use_onednn(onednn.loss_module, "onednn", min_features=args.min_features)
     onednn_update(agent, onednn, batches, args.rounds, args.updates, args.min_features)
     bf16_update(onednn, batches, args.rounds, args.updates)
+    fused_onednn(onednn, bare, batches, plain, args.rounds, args.updates)
     if args.compile:
         compiled_update(agent, batches, args.rounds, args.updates)
     act_one(onednn, args.rounds)
@@ -282,6 +286,43 @@ def bf16_update(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
     print(f"  one fixed batch: losses agree to {loss_gap:.1e}, gradients to {grad_gap:.1e} of their largest entry; "
           "after {} updates actor weights / actions apart by {:.2g} / {:.2g}".format(
               rounds * updates, *_drift(onednn, candidate, batches[-1])))
+
+
+def fused_onednn(onednn: DDPGAgent, bare: BareDDPG, batches, plain, rounds: int, updates: int) -> None:
+    """The update on oneDNN layers, float32 and (where native) bfloat16, differentiated by autograd and by
+    hand (``gradients="fused"``), in rotating rounds beside the bare float32 update on torch's BLAS (the
+    fp32 floor's, ``benchmarks/iteration.py``); whether each fused agent's networks still equal its
+    autograd twin's bit for bit after all of them."""
+    precisions = ["float32"] + (["bfloat16"] if bf16_available() else [])
+    agents = {}
+    for precision in precisions:
+        for gradients in ("autograd", "fused"):
+            agent = DDPGAgent(onednn.obs_dim, onednn.goal_dim, onednn.action_dim, matmul="onednn",
+                              precision=precision, gradients=gradients)  # fmt: skip
+            agent.load_state_dict(copy.deepcopy(onednn.state_dict()))  # the same weights, normalisers, optimiser state
+            agents[f"{precision} {gradients}"] = agent
+    runners = {name: (lambda i, a=agent: a.update(batches[i % len(batches)])) for name, agent in agents.items()}
+    runners["bare"] = lambda i: bare.update(*plain[i % len(plain)])
+    times: dict[str, list[float]] = {name: [] for name in runners}
+    names = list(runners)
+    for r in range(rounds):
+        for name in names[r % len(names):] + names[: r % len(names)]:
+            start = time.perf_counter()
+            for i in range(updates):
+                runners[name](i)
+            times[name].append((time.perf_counter() - start) / updates)
+
+    def ratio(a: str, b: str) -> float:
+        return statistics.median(x / y for x, y in zip(times[a], times[b], strict=True))
+
+    for precision in precisions:
+        fused, autograd = (agents[f"{precision} {g}"] for g in ("fused", "autograd"))
+        pairs = zip(fused.loss_module.state_dict().values(), autograd.loss_module.state_dict().values(), strict=True)
+        same = all(torch.equal(x, y) for x, y in pairs)
+        print(f"oneDNN {precision} with gradients=fused: {statistics.median(times[f'{precision} fused']) * 1e3:.3f} "
+              f"ms/update; fused / autograd {ratio(f'{precision} fused', f'{precision} autograd'):.3f}, "
+              f"fused / bare fp32 (torch BLAS) {ratio(f'{precision} fused', 'bare'):.3f}; networks equal to "
+              f"the autograd agent's after {rounds * updates} updates: {same}")
 
 
 def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> None:

@@ -19,9 +19,10 @@ the same raw steps plus bare fp32 updates with torch's default matmul; last, two
 processes at once against one alone, each as training runs by default (``--side-by-side``).
 
 The networks' products run on ``--matmul`` (default ``auto``, the trainer's default: oneDNN where
-measured faster, ``gchgg.linear.ONEDNN_FASTER``), the bare updates of the floor too; the trainers'
-updates in the training default ``precision=auto`` (bfloat16 where oneDNN computes it natively), the
-floors' bare updates in float32.
+measured faster, ``gchgg.linear.ONEDNN_FASTER``, or for bfloat16 products), the bare updates of the
+floor too; the trainers' updates in the training default ``precision=auto`` (bfloat16 where oneDNN
+computes it natively) with ``gradients=auto`` (differentiated by hand), the floors' bare updates in
+float32 with autograd.
 
     python benchmarks/iteration.py [--iterations 3] [--updates 1000] [--threads 1] [--chunks 1 5 50]
                                    [--matmul auto] [--overlap 3]
@@ -332,9 +333,10 @@ def main() -> None:
     floor = env_s + update_s
     _, fp32_update_s = floor_seconds(1, 1, args.updates, 256, "default")
     fp32_floor = env_s + fp32_update_s
+    precision = resolve_precision("auto", args.matmul)
     print(f"push_new, 50 episodes x 100 steps + {args.updates} updates of 256, threads={args.threads}, "
-          f"matmul={args.matmul} ({resolve_matmul(args.matmul)}), precision=auto "
-          f"({resolve_precision('auto', args.matmul)}, the training default)")
+          f"matmul={args.matmul} ({resolve_matmul(args.matmul, precision)}), precision=auto "
+          f"({precision}, the training default), gradients=auto")
     print(f"floor: {floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare DDPG updates {update_s:.2f} s)")
     print(f"fp32 floor: {fp32_floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare fp32 DDPG updates with "
           f"torch's default matmul {fp32_update_s:.2f} s)")

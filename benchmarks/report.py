@@ -6,8 +6,9 @@ section of ``docs/benchmarks.md``, under a line that records the command, the co
 the machine (with the CPU capability torch runs at) and its load average when the run started (and
 ``$BENCHMARK_NOTE``, e.g. "training runs paused"): these machines are shared, so a figure is only as
 quiet as the machine was. Other sections are left as they are. A run where torch runs at a
-capability other than AVX-512 writes its own section, ``<script> on <capability>`` (e.g.
-``linear.py on AVX2``), so the figures of both kinds of machine stand side by side.
+capability other than AVX-512, or on a CPU with AMX tiles (Intel Xeon: bfloat16 products on AMX,
+and its own BLAS's speed), writes its own section, ``<script> on <kind>`` (e.g. ``linear.py on AVX2``,
+``iteration.py on AVX512 with AMX``), so the figures of each kind of machine stand side by side.
 """
 
 from __future__ import annotations
@@ -31,8 +32,9 @@ Each section is the script's output from its last run with `--docs`, under the c
 machine and load average it ran with (and how the machine was shared, where that was noted). \
 Speed is printed as ratios measured in the same run: the
 machines are shared and noisy, so absolute times vary between runs by up to 2x. A section titled
-`<script> on <capability>` ran on a CPU where torch runs at that capability (AVX2: no AVX-512, so
-no native bfloat16 and slower oneDNN products); the others on AVX-512 machines.
+`<script> on <kind>` ran on such a CPU: AVX2 (torch at AVX2: no AVX-512, so no native bfloat16 and
+slower oneDNN products) or AVX512 with AMX (an Intel Xeon: AVX-512 and AMX tiles, bfloat16 products
+on AMX); the others on AVX-512 machines without AMX (AMD EPYC).
 """
 
 
@@ -61,14 +63,25 @@ def run(main: Callable[[], None], script: str) -> None:
     with contextlib.redirect_stdout(_Tee(sys.stdout, captured)):
         main()
     if write:
-        name = section_name(Path(script).name, _capability())
+        name = section_name(Path(script).name, _kind())
         write_section(name, started, captured.getvalue())
         print(f"wrote the {name} section of {DOCS.relative_to(ROOT)}", file=sys.stderr)
 
 
-def section_name(script: str, capability: str) -> str:
-    """The script's section: its name on AVX-512, ``<script> on <capability>`` elsewhere."""
-    return script if capability == "AVX512" else f"{script} on {capability}"
+def section_name(script: str, kind: str) -> str:
+    """The script's section: its name on AVX-512 without AMX, ``<script> on <kind>`` elsewhere."""
+    return script if kind == "AVX512" else f"{script} on {kind}"
+
+
+def _kind() -> str:
+    """The machine's kind for its section: the capability torch runs at, ``+ " with AMX"`` where the CPU
+    has AMX tiles (``amx_bf16`` in ``/proc/cpuinfo``'s flags)."""
+    try:
+        amx = any(line.startswith("flags") and " amx_bf16" in line
+                  for line in Path("/proc/cpuinfo").read_text().splitlines())  # fmt: skip
+    except OSError:
+        amx = False
+    return _capability() + (" with AMX" if amx else "")
 
 
 def _capability() -> str:

@@ -18,10 +18,10 @@ The agent follows the reference implementation's defaults (``REFERENCE.md``, "Tr
 ``DDPGLoss`` has neither the clipped bootstrap nor the action penalty); :class:`DDPGAgent` adds the
 optimisers, the target-update schedule, exploration, the value function HGG needs and a complete
 ``state_dict``. Its :meth:`DDPGAgent.update` reads the batch's tensors once and runs the loss's
-tensor path, differentiated by autograd or, where the products are float32 on torch's BLAS, by
-hand with the same result bit for bit (:mod:`gchgg.fused_update`; ``benchmarks/agent_update.py``
-times both). Its ``matmul`` argument picks who computes the wide layers' matrix products
-(:mod:`gchgg.linear`: oneDNN where measured faster); it changes speed, not the math.
+tensor path, differentiated by autograd or by hand with the same result bit for bit
+(:mod:`gchgg.fused_update`, the default; ``benchmarks/agent_update.py`` times both). Its ``matmul``
+argument picks who computes the wide layers' matrix products (:mod:`gchgg.linear`: oneDNN where
+measured faster); it changes speed, not the math.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from torch import nn
 from torchrl.modules import MLP
 
 from gchgg.fused_update import FusedDDPGUpdate, unsupported
-from gchgg.linear import MIN_BATCH, products_in, resolve_precision, use_onednn
+from gchgg.linear import MIN_BATCH, products_in, resolve_matmul, resolve_precision, use_onednn
 from gchgg.validation import check_number
 
 __all__ = [
@@ -259,9 +259,10 @@ def make_ddpg_networks(
 GRADIENTS = ("auto", "fused", "autograd")
 """How :meth:`DDPGAgent.update` computes the gradients (the ``gradients`` setting): ``autograd`` differentiates
 :class:`HindsightDDPGLoss`; ``fused`` computes the same losses and gradients by hand
-(:class:`gchgg.fused_update.FusedDDPGUpdate`: bit for bit autograd's on torch's BLAS, faster by the
-autograd overhead it skips, ``benchmarks/agent_update.py``); ``auto``: ``fused`` where it applies
-(float32 products on torch's BLAS, i.e. ``matmul`` not resolving to oneDNN), else ``autograd``."""
+(:class:`gchgg.fused_update.FusedDDPGUpdate`: bit for bit autograd's, on torch's BLAS and on oneDNN in
+float32 or bfloat16, faster by the autograd overhead and conversions it skips,
+``benchmarks/agent_update.py``); ``auto``: ``fused`` where it applies (the ReLU MLPs
+:func:`make_ddpg_networks` builds), else ``autograd``."""
 
 
 @dataclass(frozen=True)
@@ -512,7 +513,7 @@ class DDPGAgent:
         config: the hyperparameters (:class:`DDPGConfig`; default: the original code's).
         generator: draws the initial weights (``None``: torch's global generator).
         matmul: who computes the wide layers' products, one of :data:`gchgg.linear.MATMUL_BACKENDS`
-            (``"auto"``: oneDNN where this torch has it and the CPU is one of
+            (``"auto"``: oneDNN where this torch has it and the products are bfloat16 or the CPU is one of
             :data:`gchgg.linear.ONEDNN_FASTER`, else torch's BLAS). Speed only: it is not a hyperparameter,
             is not saved, and a state loads under any backend.
         precision: the dtype of those products in :meth:`update`, one of :data:`gchgg.linear.PRECISIONS`:
@@ -581,8 +582,8 @@ class DDPGAgent:
         self.loss_module = HindsightDDPGLoss(
             actor, critic, gamma=config.gamma, action_l2=config.action_l2, clip_return=config.clip_return
         )
-        use_onednn(self.loss_module, matmul)  # the online and the target networks
         self.precision = resolve_precision(precision, matmul)  # "auto" -> what this machine does well
+        use_onednn(self.loss_module, resolve_matmul(matmul, self.precision))  # the online and the target networks
         # fused Adam: one kernel per step instead of several per parameter
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
@@ -599,12 +600,12 @@ class DDPGAgent:
             raise ValueError(f"gradients must be one of {list(GRADIENTS)}, got {gradients!r}")
         if gradients == "autograd":
             return None
-        reason = "precision is not float32" if self.precision != "float32" else unsupported(self.loss_module)
+        reason = unsupported(self.loss_module)
         if reason is None:
-            return FusedDDPGUpdate(self.loss_module)
+            return FusedDDPGUpdate(self.loss_module, precision=self.precision)
         if gradients == "fused":
-            raise ValueError(f"gradients='fused' computes float32 products of plain nn.Linear layers, but {reason} "
-                             "(matmul resolving to oneDNN converts the layers); use gradients=auto or autograd")
+            raise ValueError(f"gradients='fused' differentiates ReLU MLPs of float32 linear layers, but {reason}; "
+                             "use gradients=auto or autograd")
         return None
 
     # -- acting ---------------------------------------------------------------------------------

@@ -15,14 +15,18 @@ gradients with the products written out:
   ``tanh_backward``).
 
 Every product is one autograd computes, of the same shapes, so the losses and gradients equal
-autograd's bit for bit (``tests/test_fused_update.py``, batch sizes 5 to 64; the recorded tiny runs of
+autograd's bit for bit (``tests/test_fused_update.py``, batch sizes 5 to 256; the recorded tiny runs of
 ``tests/test_same_numbers.py`` do not move). ``python benchmarks/agent_update.py`` times it against
 the autograd update and the bare plain-torch one (``fused / autograd agent``, ``fused / bare``).
 
-It applies to the networks :func:`gchgg.agent.make_ddpg_networks` builds: ReLU MLPs of plain
-``nn.Linear`` layers with biases (:func:`unsupported` says why other networks are not), in
-float32. Layers converted to oneDNN (:mod:`gchgg.linear`) keep the autograd update, whose oneDNN
-products are the faster ones there.
+It applies to the networks :func:`gchgg.agent.make_ddpg_networks` builds: ReLU MLPs of float32
+``nn.Linear`` layers with biases (:func:`unsupported` says why other networks are not), on torch's
+BLAS or converted to oneDNN (:mod:`gchgg.linear`). A :class:`~gchgg.linear.OneDNNLinear` layer's
+products are computed as it computes them, by oneDNN in the products' precision (float32, or
+bfloat16 with ``precision=bfloat16``: operands and results rounded, float32 accumulation), so the
+fused update equals the autograd update bit for bit in every setting (``tests/test_fused_update.py``);
+with bfloat16 it also keeps the hidden activations in bfloat16 and rounds each weight once per update
+rather than once per product (``_Products``).
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ from typing import TYPE_CHECKING
 
 import torch
 from torch import nn
+
+from gchgg.linear import MIN_BATCH, OneDNNLinear, onednn_linear
 
 if TYPE_CHECKING:  # the loss module is only read: its networks, normalisers and constants
     from gchgg.agent import HindsightDDPGLoss
@@ -44,11 +50,11 @@ def _relu_mlp_layers(mlp: nn.Module) -> list[nn.Linear] | str:
     if not modules or len(modules) % 2 != 1:
         return f"{type(mlp).__name__} is not a Sequential of Linear, ReLU, ..., Linear"
     for i, module in enumerate(modules):
-        wanted = nn.Linear if i % 2 == 0 else nn.ReLU
-        if type(module) is not wanted:  # subclasses (OneDNNLinear) compute their products otherwise
-            return f"layer {i} is {type(module).__name__}, not {wanted.__name__}"
-        if wanted is nn.Linear and (module.bias is None or module.weight.dtype != torch.float32
-                                    or module.weight.device.type != "cpu"):  # fmt: skip
+        wanted = (nn.Linear, OneDNNLinear) if i % 2 == 0 else (nn.ReLU,)
+        if type(module) not in wanted:  # other subclasses may compute their products otherwise
+            return f"layer {i} is {type(module).__name__}, not {wanted[0].__name__}"
+        if i % 2 == 0 and (module.bias is None or module.weight.dtype != torch.float32
+                           or module.weight.device.type != "cpu"):  # fmt: skip
             return f"layer {i} is not a float32 CPU nn.Linear with a bias"
     return modules[::2]
 
@@ -65,13 +71,82 @@ def unsupported(loss: HindsightDDPGLoss) -> str | None:
     return None
 
 
-def _forward(layers: list[nn.Linear], x: torch.Tensor) -> list[torch.Tensor]:
-    """``[x, h1, …, h_{L-1}, y]``: each layer's input (ReLU outputs) and the last layer's output."""
-    outputs = [x]
-    for layer in layers[:-1]:
-        outputs.append(torch.addmm(layer.bias, outputs[-1], layer.weight.t()).relu_())
-    outputs.append(torch.addmm(layers[-1].bias, outputs[-1], layers[-1].weight.t()))
-    return outputs
+class _Products:
+    """The products of one network's layers in one update, as its layers compute them under autograd.
+
+    A :class:`OneDNNLinear` layer given a batch of at least :data:`MIN_BATCH` rows multiplies on oneDNN
+    in the products' dtype (operands rounded to it, results in it); every other layer multiplies in
+    float32 on torch's BLAS (``addmm``/``mm``). A layer's weight is rounded once per update and serves
+    the forward passes and the backward. Activations stay in the dtype they were computed in: ReLU and
+    its backward commute with rounding to bfloat16, so keeping a bfloat16 result instead of its float32
+    copy (what autograd's layers return) changes no value and saves two conversions per layer.
+    """
+
+    def __init__(self, layers: list[nn.Linear], dtype: torch.dtype) -> None:
+        self.layers = layers
+        self.dtype = dtype
+        self._weights: dict[int, torch.Tensor] = {}  # layer index -> weight in the products' dtype
+
+    def onednn(self, i: int, x: torch.Tensor) -> bool:
+        """Whether layer ``i`` computes its product with ``x`` on oneDNN (as :class:`OneDNNLinear` would)."""
+        return type(self.layers[i]) is OneDNNLinear and x.shape[0] >= MIN_BATCH
+
+    def weight(self, i: int) -> torch.Tensor:
+        """Layer ``i``'s weight in the products' dtype, rounded once per update."""
+        if i not in self._weights:
+            self._weights[i] = self.layers[i].weight.to(self.dtype)
+        return self._weights[i]
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """``[x_0, h_1, …, h_{L-1}, y]``: each layer's input as its product used it (ReLU outputs after
+        the first) and the last layer's float32 output."""
+        outputs = []
+        for i, layer in enumerate(self.layers):
+            if self.onednn(i, x):
+                x = x.to(self.dtype)
+                y = onednn_linear(x, self.weight(i), layer.bias)
+            else:
+                x = x.float()
+                y = torch.addmm(layer.bias, x, layer.weight.t())
+            outputs.append(x)
+            x = y.relu_() if i < len(self.layers) - 1 else y.float()
+        outputs.append(x)
+        return outputs
+
+    def input_gradient(self, i: int, x: torch.Tensor, grad_y: torch.Tensor) -> torch.Tensor:
+        """``∂y·W`` of layer ``i`` (whose product took ``x``), in its product's dtype."""
+        if self.onednn(i, x):
+            return onednn_linear(grad_y.to(self.dtype), self.weight(i).t(), None)
+        return torch.mm(grad_y.float(), self.layers[i].weight)
+
+    def weight_gradients(self, i: int, x: torch.Tensor, grad_y: torch.Tensor) -> None:
+        """Write layer ``i``'s ``.grad`` of weight (``∂yᵀ·x``) and bias (``Σ ∂y``)."""
+        layer = self.layers[i]
+        if self.onednn(i, x):
+            grad_y = grad_y.to(self.dtype)
+            _grad(layer.weight).copy_(onednn_linear(grad_y.t(), x.t(), None))
+            torch.sum(grad_y, 0, dtype=torch.float32, out=_grad(layer.bias))  # = grad_y.float().sum(0), one pass
+        else:
+            grad_y = grad_y.float()
+            torch.mm(grad_y.t(), x, out=_grad(layer.weight))
+            torch.sum(grad_y, 0, out=_grad(layer.bias))
+
+    def backward_input(self, outputs: list[torch.Tensor], grad_y: torch.Tensor) -> torch.Tensor:
+        """The float32 gradient of the first layer's input from the output gradient ``grad_y``; no weight
+        gradients."""
+        grad = grad_y
+        for i in range(len(self.layers) - 1, 0, -1):  # ∂x = ∂y·W, through the ReLU whose output is this layer's input
+            grad = torch.ops.aten.threshold_backward(self.input_gradient(i, outputs[i], grad), outputs[i], 0)
+        return self.input_gradient(0, outputs[0], grad).float()
+
+    def backward_weights(self, outputs: list[torch.Tensor], grad_y: torch.Tensor) -> None:
+        """Write every layer's weight and bias gradients from the output gradient ``grad_y`` (the first
+        layer's input gradient is not computed: nothing needs it)."""
+        grad = grad_y
+        for i in range(len(self.layers) - 1, -1, -1):
+            self.weight_gradients(i, outputs[i], grad)
+            if i > 0:
+                grad = torch.ops.aten.threshold_backward(self.input_gradient(i, outputs[i], grad), outputs[i], 0)
 
 
 def _grad(parameter: nn.Parameter) -> torch.Tensor:
@@ -79,26 +154,6 @@ def _grad(parameter: nn.Parameter) -> torch.Tensor:
     if parameter.grad is None:
         parameter.grad = torch.empty_like(parameter)
     return parameter.grad
-
-
-def _backward_input(layers: list[nn.Linear], outputs: list[torch.Tensor], grad_y: torch.Tensor) -> torch.Tensor:
-    """The gradient of the first layer's input from the output gradient ``grad_y``; no weight gradients."""
-    grad = grad_y
-    for i in range(len(layers) - 1, 0, -1):  # ∂x = ∂y·W, through the ReLU whose output is this layer's input
-        grad = torch.ops.aten.threshold_backward(torch.mm(grad, layers[i].weight), outputs[i], 0)
-    return torch.mm(grad, layers[0].weight)
-
-
-def _backward_weights(layers: list[nn.Linear], outputs: list[torch.Tensor], grad_y: torch.Tensor) -> None:
-    """Write the weight and bias gradients of ``layers`` from the output gradient ``grad_y`` (the first
-    layer's input gradient is not computed: nothing needs it)."""
-    grad = grad_y
-    for i in range(len(layers) - 1, -1, -1):
-        layer = layers[i]
-        torch.mm(grad.t(), outputs[i], out=_grad(layer.weight))
-        torch.sum(grad, 0, out=_grad(layer.bias))
-        if i > 0:
-            grad = torch.ops.aten.threshold_backward(torch.mm(grad, layer.weight), outputs[i], 0)  # ∂y·W
 
 
 class FusedDDPGUpdate:
@@ -112,20 +167,28 @@ class FusedDDPGUpdate:
 
     Args:
         loss: the loss module; its networks must pass :func:`unsupported`.
+        precision: the dtype of the :class:`~gchgg.linear.OneDNNLinear` layers' products, ``"float32"`` or
+            ``"bfloat16"`` (resolved: what :func:`gchgg.linear.resolve_precision` returns and the autograd
+            update would compute them in under :func:`gchgg.linear.products_in`); plain ``nn.Linear``
+            layers multiply in float32.
 
     Raises:
-        ValueError: ``loss`` has networks this update does not compute (the reason given).
+        ValueError: ``loss`` has networks this update does not compute (the reason given), or
+            ``precision`` is not a resolved precision.
     """
 
-    def __init__(self, loss: HindsightDDPGLoss) -> None:
+    def __init__(self, loss: HindsightDDPGLoss, precision: str = "float32") -> None:
         reason = unsupported(loss)
         if reason is not None:
             raise ValueError(f"FusedDDPGUpdate needs ReLU MLPs of plain float32 nn.Linear layers: {reason}")
         self.loss = loss
-        self.actor = _relu_mlp_layers(loss.actor.mlp)
-        self.critic = _relu_mlp_layers(loss.critic.mlp)
-        self.target_actor = _relu_mlp_layers(loss.target_actor.mlp)
-        self.target_critic = _relu_mlp_layers(loss.target_critic.mlp)
+        if precision not in ("float32", "bfloat16"):
+            raise ValueError(f"precision must be 'float32' or 'bfloat16' (resolved, as gchgg.linear.resolve_precision "
+                             f"returns it), got {precision!r}")
+        self.precision = precision
+        self._dtype = getattr(torch, precision)
+        self._layers = {name: _relu_mlp_layers(getattr(loss, name).mlp)
+                        for name in ("actor", "critic", "target_actor", "target_critic")}  # fmt: skip
         self._saved: tuple | None = None
 
     @torch.no_grad()
@@ -142,17 +205,19 @@ class FusedDDPGUpdate:
         loss, actor = self.loss, self.loss.actor
         normalize = lambda o, g: torch.cat([actor.observation_normalizer(o), actor.goal_normalizer(g)], -1)  # noqa: E731
         next_x = normalize(next_observation, goal)
-        next_action = _forward(self.target_actor, next_x)[-1].tanh_()
-        next_value = _forward(self.target_critic, torch.cat([next_x, next_action], -1))[-1]
+        products = {name: _Products(layers, self._dtype) for name, layers in self._layers.items()}  # this update's
+        next_action = products["target_actor"].forward(next_x)[-1].tanh_()
+        next_value = products["target_critic"].forward(torch.cat([next_x, next_action], -1))[-1]
         if loss.clip_return:
             next_value = next_value.clamp_(*loss.return_range)
         target_value = reward + loss.gamma * next_value
 
         x = normalize(observation, goal)
-        actor_outputs = _forward(self.actor, x)
+        actor, critic = products["actor"], products["critic"]
+        actor_outputs = actor.forward(x)
         policy_action = actor_outputs[-1].tanh()
-        value_outputs = _forward(self.critic, torch.cat([x, action], -1))  # Q(s‖g, a)
-        policy_outputs = _forward(self.critic, torch.cat([x, policy_action], -1))  # Q(s‖g, π(s‖g))
+        value_outputs = critic.forward(torch.cat([x, action], -1))  # Q(s‖g, a)
+        policy_outputs = critic.forward(torch.cat([x, policy_action], -1))  # Q(s‖g, π(s‖g))
         pred_value, policy_value = value_outputs[-1], policy_outputs[-1]
         if pred_value.shape != target_value.shape:
             raise ValueError(
@@ -164,7 +229,7 @@ class FusedDDPGUpdate:
         loss_actor = -policy_value.mean()
         if loss.action_l2:
             loss_actor = loss_actor + loss.action_l2 * policy_action.square().mean()
-        self._saved = (error, policy_action, actor_outputs, value_outputs, policy_outputs)
+        self._saved = (actor, critic, error, policy_action, actor_outputs, value_outputs, policy_outputs)
         return loss_actor, loss_value, pred_value, target_value
 
     @torch.no_grad()
@@ -172,14 +237,16 @@ class FusedDDPGUpdate:
         """Write the online actor's and critic's ``.grad`` from the last :meth:`forward`."""
         if self._saved is None:
             raise RuntimeError("FusedDDPGUpdate.backward() needs a forward() first (and runs once per forward)")
-        error, policy_action, actor_outputs, value_outputs, policy_outputs = self._saved
+        actor, critic, error, policy_action, actor_outputs, value_outputs, policy_outputs = self._saved
         self._saved = None
         # the critic loss: ∂ mean((Q − y)²) / ∂Q into the critic's weights
-        _backward_weights(self.critic, value_outputs, error * (2.0 / error.numel()))
+        critic.backward_weights(value_outputs, error * (2.0 / error.numel()))
         # the actor loss: ∂(−mean Q(s‖g, π)) / ∂Q back to the action only (the critic's weights are constants)
         grad_q = torch.full_like(policy_outputs[-1], -1.0 / policy_outputs[-1].numel())
-        grad_action = _backward_input(self.critic, policy_outputs, grad_q)[:, -policy_action.shape[-1]:]
+        grad_action = critic.backward_input(policy_outputs, grad_q)[:, -policy_action.shape[-1]:]
         if self.loss.action_l2:
-            grad_action = grad_action + policy_action * (2.0 * self.loss.action_l2 / policy_action.numel())
+            # ∂(l2·mean(a²))/∂a in autograd's order and rounding: (float32(l2) / n) · 2a
+            scale = torch.tensor(self.loss.action_l2, dtype=grad_action.dtype) / policy_action.numel()
+            grad_action = grad_action + (2 * policy_action) * scale
         grad_pre_tanh = torch.ops.aten.tanh_backward(grad_action, policy_action)  # ∂y·(1 − y²), as autograd
-        _backward_weights(self.actor, actor_outputs, grad_pre_tanh)
+        actor.backward_weights(actor_outputs, grad_pre_tanh)

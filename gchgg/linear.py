@@ -31,21 +31,22 @@ import torch.nn.functional as F
 from torch import nn
 
 __all__ = ["MATMUL_BACKENDS", "MIN_BATCH", "MIN_FEATURES", "ONEDNN_FASTER", "PRECISIONS", "OneDNNLinear",
-           "bf16_available", "cpu_capability", "onednn_available", "products_in", "resolve_matmul",
-           "resolve_precision", "use_onednn"]  # fmt: skip
+           "bf16_available", "cpu_capability", "cpu_vendor", "onednn_available", "onednn_linear", "products_in",
+           "resolve_matmul", "resolve_precision", "use_onednn"]  # fmt: skip
 
 MATMUL_BACKENDS = ("auto", "onednn", "default")
-"""``auto``: oneDNN where this torch has it and the CPU is one it was measured faster on
-(:data:`ONEDNN_FASTER`), else torch's BLAS; ``onednn``: oneDNN or an error; ``default``: torch's
-BLAS (``F.linear``) everywhere."""
+"""``auto``: oneDNN where this torch has it and the products are bfloat16 or the CPU is one it was
+measured faster on in float32 (:data:`ONEDNN_FASTER`), else torch's BLAS; ``onednn``: oneDNN or an
+error; ``default``: torch's BLAS (``F.linear``) everywhere."""
 
-ONEDNN_FASTER = ("AVX512",)
-"""CPU capabilities (``torch.backends.cpu.get_cpu_capability()``) on which ``matmul=auto`` takes oneDNN:
-those where the whole update was measured faster on it than on torch's BLAS, one thread, batch 256
-(``python benchmarks/agent_update.py --threads 1``; docs/benchmarks.md): AVX512 (AMD EPYC, 2 cores)
-1.59x. Not AVX2 (AMD EPYC, 2 cores): 0.80x, every product but one of the update slower on oneDNN
-(``benchmarks/linear.py``: the 256-wide hidden layers' 0.82-0.93x at batch 256). Other
-capabilities are unmeasured and keep torch's BLAS."""
+ONEDNN_FASTER = (("AVX512", "AuthenticAMD"),)
+"""The CPUs, as (capability torch runs at, vendor), on which ``matmul=auto`` takes oneDNN for float32
+products: those where the whole update was measured faster on it than on torch's BLAS (MKL), one
+thread, batch 256 (``python benchmarks/agent_update.py --threads 1``; docs/benchmarks.md): AMD EPYC
+at AVX512 (2 cores) 1.59x. Not AMD EPYC at AVX2: 0.80x, every product but one of the update slower
+on oneDNN (``benchmarks/linear.py``: the 256-wide hidden layers' 0.82-0.93x at batch 256); not an
+Intel Xeon at AVX512 with AMX: 0.78x (MKL is Intel's own BLAS). Other CPUs are unmeasured and keep
+torch's BLAS. bfloat16 products are oneDNN's wherever they are native (:func:`resolve_matmul`)."""
 
 MIN_BATCH = 64
 """Rows from which a batch goes to oneDNN: below it a call's fixed cost outweighs the faster kernel
@@ -97,16 +98,19 @@ def products_in(precision: str) -> Iterator[None]:
         _product_dtype = previous
 
 
-def _linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
-    """``x·weightᵀ + bias`` by oneDNN; ``x`` [B, in] and ``weight`` [out, in] may be strided views."""
+def onednn_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """``x·weightᵀ + bias`` by oneDNN in the dtype of ``x`` and ``weight`` (float32 accumulation; a
+    float32 ``bias`` beside bfloat16 operands is added before the result is rounded); ``x`` [B, in] and
+    ``weight`` [out, in] may be strided views. :class:`OneDNNLinear` and
+    :class:`gchgg.fused_update.FusedDDPGUpdate` compute their products with it."""
     return torch.ops.mkldnn._linear_pointwise(x, weight, bias, "none", [], "")
 
 
 def _product(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
     """:func:`_linear` on ``x`` and ``weight`` rounded to ``dtype``, returned as float32."""
     if dtype == torch.float32:
-        return _linear(x, weight, bias)
-    return _linear(x.to(dtype), weight.to(dtype), bias).float()
+        return onednn_linear(x, weight, bias)
+    return onednn_linear(x.to(dtype), weight.to(dtype), bias).float()
 
 
 class _OneDNNLinearFunction(torch.autograd.Function):
@@ -121,7 +125,7 @@ class _OneDNNLinearFunction(torch.autograd.Function):
             x, weight = x.to(dtype), weight.to(dtype)
         ctx.save_for_backward(x, weight)
         ctx.has_bias = bias is not None
-        y = _linear(x, weight, bias)
+        y = onednn_linear(x, weight, bias)
         return y if dtype == torch.float32 else y.float()
 
     @staticmethod
@@ -130,9 +134,9 @@ class _OneDNNLinearFunction(torch.autograd.Function):
         grad_y = grad_y.to(x.dtype)
         grad_x = grad_weight = grad_bias = None
         if ctx.needs_input_grad[0]:
-            grad_x = _linear(grad_y, weight.t(), None).float()  # ∂y·W
+            grad_x = onednn_linear(grad_y, weight.t(), None).float()  # ∂y·W
         if ctx.needs_input_grad[1]:
-            grad_weight = _linear(grad_y.t(), x.t(), None).float()  # ∂yᵀ·x
+            grad_weight = onednn_linear(grad_y.t(), x.t(), None).float()  # ∂yᵀ·x
         if ctx.has_bias and ctx.needs_input_grad[2]:
             grad_bias = grad_y.float().sum(0)
         return grad_x, grad_weight, grad_bias, None
@@ -175,7 +179,7 @@ def onednn_available() -> bool:
         return False
     try:
         x, weight = torch.ones(2, 3), torch.ones(4, 3)
-        return bool(torch.equal(_linear(x, weight, None), torch.full((2, 4), 3.0)))
+        return bool(torch.equal(onednn_linear(x, weight, None), torch.full((2, 4), 3.0)))
     except (AttributeError, RuntimeError, NotImplementedError):
         return False
 
@@ -188,31 +192,33 @@ def bf16_available() -> bool:
 
 def resolve_precision(precision: str, matmul: str = "auto") -> str:
     """The products' dtype a ``precision`` setting (one of :data:`PRECISIONS`) selects on this machine
-    with the products on ``matmul``: ``"float32"`` or ``"bfloat16"``.
+    beside the ``matmul`` setting: ``"float32"`` or ``"bfloat16"``.
 
     ``auto`` is ``bfloat16`` where it is fast and its learning was measured unchanged: oneDNN with
-    native bfloat16 products (AVX-512 BF16 or AMX) and ``matmul`` resolving to oneDNN; else
-    ``float32``. (push_new GC-HGG over 3 seeds reached 0.9 within the float32 runs' range, reach by
-    iteration 10: ``docs/results/push_new/RUNS.md``; one update is ~1.2x faster:
+    native bfloat16 products (AVX-512 BF16 or AMX) and ``matmul`` not ``default``; else ``float32``.
+    (push_new GC-HGG over 3 seeds reached 0.9 within the float32 runs' range, reach by iteration 10:
+    ``docs/results/push_new/RUNS.md``; the update is 1.2-1.4x faster than in float32 on oneDNN:
     ``benchmarks/agent_update.py``.)
 
     Raises:
-        ValueError: ``precision`` is not one of :data:`PRECISIONS`, or ``bfloat16`` with ``matmul``
-            resolving to torch's BLAS.
+        ValueError: ``precision`` is not one of :data:`PRECISIONS`, or ``bfloat16`` with ``matmul="default"``
+            (torch's BLAS has no bfloat16 products).
         RuntimeError: ``bfloat16`` on a CPU or torch build without native bfloat16 oneDNN products.
     """
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+    if matmul not in MATMUL_BACKENDS:
+        raise ValueError(f"matmul must be one of {list(MATMUL_BACKENDS)}, got {matmul!r}")
     if precision == "auto":
-        return "bfloat16" if bf16_available() and resolve_matmul(matmul) == "onednn" else "float32"
+        return "bfloat16" if bf16_available() and matmul != "default" else "float32"
     if precision == "bfloat16" and not bf16_available():
         raise RuntimeError(
             "precision='bfloat16' needs oneDNN with native bfloat16 products (AVX-512 BF16 or AMX), which this "
             "CPU or torch build lacks; use precision=auto or precision=float32"
         )
-    if precision == "bfloat16" and resolve_matmul(matmul) != "onednn":
-        raise ValueError(f"precision='bfloat16' computes the products with oneDNN, but matmul={matmul!r} "
-                         "resolves to torch's BLAS; use matmul=auto or matmul=onednn, or precision=float32")
+    if precision == "bfloat16" and matmul == "default":
+        raise ValueError("precision='bfloat16' computes the products with oneDNN, but matmul='default' "
+                         "is torch's BLAS; use matmul=auto or matmul=onednn, or precision=float32")
     return precision
 
 
@@ -221,18 +227,36 @@ def cpu_capability() -> str:
     return torch.backends.cpu.get_cpu_capability()
 
 
-def resolve_matmul(matmul: str) -> str:
-    """The backend a ``matmul`` setting selects on this machine: ``"onednn"`` or ``"default"``.
+@functools.cache
+def cpu_vendor() -> str:
+    """The CPU's vendor as ``/proc/cpuinfo`` names it (``"GenuineIntel"``, ``"AuthenticAMD"``), or ``""``
+    where it cannot be read."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("vendor_id"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return ""
 
-    ``auto`` is ``"onednn"`` where this torch build has oneDNN's linear and :func:`cpu_capability`
-    is one of :data:`ONEDNN_FASTER`, else ``"default"`` (torch's BLAS).
+
+def resolve_matmul(matmul: str, precision: str = "float32") -> str:
+    """The backend a ``matmul`` setting selects on this machine for products in ``precision`` (resolved:
+    ``"float32"`` or ``"bfloat16"``, what :func:`resolve_precision` returns): ``"onednn"`` or ``"default"``.
+
+    ``auto`` is ``"onednn"`` where this torch build has oneDNN's linear and either the products are
+    bfloat16 (only oneDNN computes them) or (:func:`cpu_capability`, :func:`cpu_vendor`) is one of
+    :data:`ONEDNN_FASTER`; else ``"default"`` (torch's BLAS).
 
     Raises:
-        ValueError: ``matmul`` is not one of :data:`MATMUL_BACKENDS`.
+        ValueError: ``matmul`` is not one of :data:`MATMUL_BACKENDS`, or ``precision`` is not resolved.
         RuntimeError: ``matmul="onednn"`` and this torch build has no oneDNN linear.
     """
     if matmul not in MATMUL_BACKENDS:
         raise ValueError(f"matmul must be one of {list(MATMUL_BACKENDS)}, got {matmul!r}")
+    if precision not in ("float32", "bfloat16"):
+        raise ValueError(f"resolve_matmul takes a resolved precision, 'float32' or 'bfloat16', got {precision!r}")
     if matmul == "default":
         return "default"
     if matmul == "onednn" and not onednn_available():
@@ -240,7 +264,8 @@ def resolve_matmul(matmul: str) -> str:
             "matmul='onednn' but this torch build has no oneDNN linear (torch.ops.mkldnn._linear_pointwise); "
             "use matmul=auto (falls back to torch's BLAS) or matmul=default"
         )
-    if matmul == "onednn" or (onednn_available() and cpu_capability() in ONEDNN_FASTER):
+    faster = precision == "bfloat16" or (cpu_capability(), cpu_vendor()) in ONEDNN_FASTER
+    if matmul == "onednn" or (onednn_available() and faster):
         return "onednn"
     return "default"
 
@@ -248,7 +273,8 @@ def resolve_matmul(matmul: str) -> str:
 def use_onednn(module: nn.Module, backend: str = "auto", min_features: int = MIN_FEATURES) -> nn.Module:
     """Set the linear layers of ``module`` to ``backend``, in place, and return ``module``.
 
-    With ``backend`` resolving to oneDNN (:func:`resolve_matmul`), every ``nn.Linear`` at least
+    With ``backend`` resolving to oneDNN (:func:`resolve_matmul` for float32 products: pass the resolved
+    backend for bfloat16 ones), every ``nn.Linear`` at least
     ``min_features`` wide on both sides becomes a :class:`OneDNNLinear` (its class changes; its
     parameters are the same tensors, so optimisers, target copies and state dicts are unaffected).
     With ``"default"`` every :class:`OneDNNLinear` becomes a plain ``nn.Linear`` again.

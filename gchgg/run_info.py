@@ -40,7 +40,7 @@ def open_loggers(cfg: DictConfig, run_dir: Path) -> loggers.RunLoggers:
     hparams = {
         **OmegaConf.to_container(cfg, resolve=True),
         "versions": versions(),
-        "matmul_resolved": resolve_matmul(cfg.matmul),
+        "matmul_resolved": resolve_matmul(cfg.matmul, resolve_precision(cfg.precision, cfg.matmul)),
         "precision_resolved": resolve_precision(cfg.precision, cfg.matmul),
     }
     settings = cfg.logging
@@ -79,7 +79,7 @@ def startup_record(cfg: DictConfig, gradients: str | None = None) -> str:
     matmul, precision = cfg.matmul, cfg.precision
     resolved = f"gradients: {cfg.get('gradients', 'auto')} -> {gradients}\n" if gradients else ""
     return (
-        f"versions: {packages}\nmatmul: {matmul} -> {resolve_matmul(matmul)}\n"
+        f"versions: {packages}\nmatmul: {matmul} -> {resolve_matmul(matmul, resolve_precision(precision, matmul))}\n"
         f"precision: {precision} -> {resolve_precision(precision, matmul)}\n{resolved}"
         f"resolved config:\n{OmegaConf.to_yaml(cfg, resolve=True)}"
     )

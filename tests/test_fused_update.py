@@ -1,5 +1,6 @@
 """Tests of gchgg.fused_update: the hand-differentiated DDPG update equals autograd's on the loss module,
-bit for bit, and the agent chooses it only where it applies."""
+bit for bit, on torch's BLAS and on oneDNN layers in float32 and bfloat16, and the agent chooses it
+wherever it applies."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from torch import nn
 
 from gchgg.agent import DDPGAgent, HindsightDDPGLoss, make_ddpg_networks
 from gchgg.fused_update import FusedDDPGUpdate, unsupported
-from gchgg.linear import onednn_available
+from gchgg.linear import bf16_available, onednn_available, products_in, use_onednn
 
 OBS, GOAL, ACT = 6, 3, 2
 
@@ -67,6 +68,8 @@ def autograd_gradients(loss: HindsightDDPGLoss, values) -> tuple[list[torch.Tens
         ((32, 32), 16, {}),
         ((16,), 5, {"action_l2": 0.0}),
         ((24, 8, 16), 64, {"clip_return": False, "gamma": 0.9, "action_l2": 0.3}),
+        ((32, 32), 40, {"action_l2": 0.3}),  # 0.3 / 80 rounds otherwise than 2 · 0.3 / 80: autograd's order matters
+        ((32, 32), 256, {"action_l2": 0.7}),
     ],
 )
 def test_fused_losses_and_gradients_are_autograds_bit_for_bit(hidden, size, settings):
@@ -109,16 +112,65 @@ def test_agent_with_fused_updates_trains_exactly_as_with_autograd():
                 assert torch.equal(fused[which]["state"][index][name], value), (which, index, name)
 
 
-def test_auto_takes_the_fused_update_only_where_it_applies():
+ONEDNN_PRECISIONS = [
+    pytest.param("float32", marks=pytest.mark.skipif(not onednn_available(), reason="this torch has no oneDNN linear")),
+    pytest.param("bfloat16", marks=pytest.mark.skipif(not bf16_available(), reason="no native bfloat16 products")),
+]
+
+
+@pytest.mark.parametrize("precision", ONEDNN_PRECISIONS)
+@pytest.mark.parametrize("size", [96, 40])  # oneDNN's products from MIN_BATCH (64) rows, torch BLAS's below
+def test_fused_equals_autograd_on_onednn_layers_bit_for_bit(precision, size):
+    loss = use_onednn(loss_module((64, 32, 128), action_l2=0.3), "onednn")  # the 2- and 6-wide layers stay plain
+    values = tensors(size, seed=4)
+    with products_in(precision):
+        reference_out, reference_grads = autograd_gradients(loss, values)
+    fused = FusedDDPGUpdate(loss, precision=precision)
+    out = fused.forward(*values)
+    fused.backward()
+    grads = [p.grad.clone() for p in list(loss.actor.parameters()) + list(loss.critic.parameters())]
+    for name, a, b in zip(("loss_actor", "loss_value", "pred_value", "target_value"), reference_out, out, strict=True):
+        assert torch.equal(a, b), name
+        assert b.dtype == torch.float32
+    for i, (a, b) in enumerate(zip(reference_grads, grads, strict=True)):
+        assert torch.equal(a, b), f"gradient {i}: largest difference {(a - b).abs().max().item():.3g}"
+    if precision == "bfloat16" and size >= 64:  # the products were rounded: not float32's gradients
+        float32 = FusedDDPGUpdate(loss, precision="float32")
+        float32.forward(*values)
+        float32.backward()
+        assert not all(torch.equal(a, p.grad) for a, p in
+                       zip(grads, list(loss.actor.parameters()) + list(loss.critic.parameters()), strict=True))
+
+
+@pytest.mark.parametrize("precision", ONEDNN_PRECISIONS)
+def test_agent_on_onednn_trains_with_fused_updates_exactly_as_with_autograd(precision):
+    agents = {update: DDPGAgent(OBS, GOAL, ACT, hidden=(64, 64), generator=torch.Generator().manual_seed(0),
+                                matmul="onednn", precision=precision, gradients=update)
+              for update in ("fused", "autograd")}  # fmt: skip
+    assert [a.gradients for a in agents.values()] == ["fused", "autograd"]
+    for agent in agents.values():
+        agent.update_normalizer(*tensors(200, 5)[:2])
+    for step in range(25):  # across a target-network update, batches above and below MIN_BATCH
+        batch = batch_of(tensors(80 if step % 3 else 16, 30 + step))
+        results = [agent.update(batch) for agent in agents.values()]
+        assert results[0] == results[1], step
+    fused, reference = (agents[k].state_dict()["networks"] for k in ("fused", "autograd"))
+    assert all(torch.equal(fused[key], value) for key, value in reference.items())
+
+
+def test_auto_takes_the_fused_update_wherever_it_applies():
     agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default")  # gradients="auto"
     assert agent.gradients == "fused"
     assert DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd").gradients == "autograd"
-    if onednn_available():  # oneDNN layers keep autograd (their products are oneDNN's)
-        assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn").gradients == "autograd"
-        with pytest.raises(ValueError, match="gradients='fused'.*OneDNNLinear"):
-            DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn", gradients="fused")
+    if onednn_available():  # oneDNN layers too, in the precision auto resolves to here
+        assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn", precision="auto").gradients == "fused"
     with pytest.raises(ValueError, match=r"gradients must be one of \['auto', 'fused', 'autograd'\], got 'manual'"):
         DDPGAgent(OBS, GOAL, ACT, hidden=(16,), gradients="manual")
+    agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd")
+    agent.critic.mlp[1] = nn.Tanh()  # a network the fused update does not compute: auto falls back, fused refuses
+    assert agent._fused_update("auto") is None
+    with pytest.raises(ValueError, match="gradients='fused' differentiates ReLU MLPs.*layer 1 is Tanh"):
+        agent._fused_update("fused")
 
 
 def test_unsupported_networks_are_named():
@@ -128,6 +180,8 @@ def test_unsupported_networks_are_named():
     assert unsupported(loss) == "the critic's mlp: layer 1 is Tanh, not ReLU"
     with pytest.raises(ValueError, match="ReLU MLPs of plain float32 nn.Linear layers: the critic's mlp"):
         FusedDDPGUpdate(loss)
+    with pytest.raises(ValueError, match="precision must be 'float32' or 'bfloat16'.*got 'auto'"):
+        FusedDDPGUpdate(loss_module((16,)), precision="auto")
     loss = loss_module((16,))
     loss.target_actor.mlp[0].bias = None
     assert unsupported(loss) == "the target_actor's mlp: layer 0 is not a float32 CPU nn.Linear with a bias"
