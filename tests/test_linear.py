@@ -98,7 +98,7 @@ def test_resolve_matmul_names_the_setting_and_falls_back(monkeypatch):
 
 @needs_onednn
 def test_auto_takes_onednn_only_on_cpus_it_was_measured_faster_on(monkeypatch):
-    """float32: oneDNN's update 1.59x torch's BLAS on AMD at AVX512, 0.80x on AMD at AVX2 and 0.78x on an
+    """float32: oneDNN's update 1.59x torch's BLAS on AMD at AVX512, 0.80x on AMD at AVX2 and 0.85x on an
     Intel Xeon at AVX512 (benchmarks/agent_update.py), so auto keeps BLAS there; bfloat16: only oneDNN has it."""
     cases = (("AVX512", "AuthenticAMD", "onednn"), ("AVX512", "GenuineIntel", "default"),
              ("AVX2", "AuthenticAMD", "default"), ("DEFAULT", "", "default"))  # fmt: skip
