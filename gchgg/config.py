@@ -310,9 +310,9 @@ class RunConfig:
     resume: bool = False  # continue the run in the run folder from its last checkpoint
     init_from: str | None = None  # a run folder: start from its last checkpoint with these settings (a fork)
     threads: int = 1  # torch CPU threads (1: fastest for these small nets on a shared machine; 0: torch's)
-    matmul: str = "auto"  # the wide layers' products: auto (oneDNN where faster: ONEDNN_FASTER) | onednn | default
+    matmul: str = "auto"  # the wide layers' products: auto (oneDNN for bfloat16, or where faster) | onednn | default
     precision: str = "auto"  # their dtype in updates: auto (bfloat16 where native) | float32 | bfloat16
-    gradients: str = "auto"  # of the updates: auto (by hand where the products are float32 BLAS) | fused | autograd
+    gradients: str = "auto"  # of the updates: auto (by hand wherever the networks allow) | fused | autograd
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     graph: GraphConfig | None = None  # the graph=default group; null where no metric is the graph
