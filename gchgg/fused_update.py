@@ -1,9 +1,9 @@
 """The DDPG update of :class:`gchgg.agent.HindsightDDPGLoss` differentiated by hand: the speed device beside the loss.
 
 :class:`HindsightDDPGLoss` states the losses (the paper's and the original code's critic and actor
-losses) and autograd differentiates them. Where the products run on torch's BLAS, part of that
-update is spent outside them: building and walking the autograd graph, ``nn.Module`` calls,
-normalising the same batch three times. :class:`FusedDDPGUpdate` computes the same losses and
+losses) and autograd differentiates them. Part of that update is spent outside the products:
+building and walking the autograd graph, ``nn.Module`` calls, normalising the same batch three
+times, and in bfloat16 converting every activation to and from float32. :class:`FusedDDPGUpdate` computes the same losses and
 gradients with the products written out:
 
 - the observation and goal are normalised once for the actor and both critic terms;
