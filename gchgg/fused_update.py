@@ -3,8 +3,8 @@
 :class:`HindsightDDPGLoss` states the losses (the paper's and the original code's critic and actor
 losses) and autograd differentiates them. Part of that update is spent outside the products:
 building and walking the autograd graph, ``nn.Module`` calls, normalising the same batch three
-times, and in bfloat16 converting every activation to and from float32. :class:`FusedDDPGUpdate` computes the same losses and
-gradients with the products written out:
+times, and in bfloat16 converting every activation to and from float32. :class:`FusedDDPGUpdate`
+computes the same losses and gradients with the products written out:
 
 - the observation and goal are normalised once for the actor and both critic terms;
 - the critic loss's backward writes the critic's weight gradients; the actor loss's backward
