@@ -18,7 +18,8 @@ Prints, in one run:
 * in a plain ``TensorDictReplayBuffer`` of 200,000 synthetic transitions (goals and targets uniform
   in push_new's goal field) with a Euclidean metric: ``sample()`` of 256 with K = 8 against uniform
   sampling, at one torch thread and at torch's default thread count, interleaved in one run
-  (target: <= 5x uniform at both), and the same with goals and targets drawn from achieved goals
+  (target: <= 5x uniform at both; also with ``diagnostics=True``, the choice's three diagnostics
+  in every batch), and the same with goals and targets drawn from achieved goals
   recorded in a push_new run (``benchmarks/data/push_new_achieved_goals.npy``, written by
   ``benchmarks/record_goals.py``): clustered as an object mostly at rest leaves them; the curriculum
   sampler's own ``sample()`` at both thread counts (target: no slower at 2 than at 1); and a loop
@@ -375,7 +376,8 @@ def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False)
 
     data = rows(size)
     buffers = {"uniform": plain(RandomSampler()),
-               "curriculum": plain(GraphCurriculumSampler(EuclideanMetric(), 8, 1.0))}
+               "curriculum": plain(GraphCurriculumSampler(EuclideanMetric(), 8, 1.0)),
+               "diagnostics": plain(GraphCurriculumSampler(EuclideanMetric(), 8, 1.0, diagnostics=True))}
     thread_counts = sorted({1, DEFAULT_THREADS})
     times = {(name, t): [] for name in buffers for t in thread_counts}
     alone = {t: [] for t in thread_counts}  # the curriculum sampler's own sample(), without TorchRL's row gather
@@ -402,9 +404,11 @@ def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False)
         uniform = statistics.median(times["uniform", threads])
         seconds = statistics.median(times["curriculum", threads])
         label = "default" if threads == DEFAULT_THREADS else "one"
+        diagnosed = statistics.median(times["diagnostics", threads])
         print(f"  {threads} thread(s) ({label}): uniform {uniform * 1e3:.3f} ms, curriculum {seconds * 1e3:.3f} ms "
               f"= {seconds / uniform:.1f} x uniform (target <= 5); the sampler's own sample() "
-              f"{statistics.median(alone[threads]) * 1e3:.3f} ms")
+              f"{statistics.median(alone[threads]) * 1e3:.3f} ms; with diagnostics=True {diagnosed * 1e3:.3f} ms "
+              f"= {diagnosed / uniform:.1f} x")
     if len(thread_counts) > 1:  # per round, the two thread counts ran back to back: their ratio, and its spread
         ratios = sorted(more / one for one, more in zip(alone[1], alone[thread_counts[-1]], strict=True))
         low, high = np.quantile(ratios, [0.25, 0.75])

@@ -112,6 +112,7 @@ def make_sampler(kind: str, metric, tradeoff, **settings):
             scale=settings["scale"],
             energy_key="energy",
             on_write="redraw",  # every batch from the buffer as it is when sampled (the recorded runs)
+            diagnostics=True,  # metrics.csv's diversity_spread, proximity_spread and diversity_decided
         )
     return CherSampler(metric, pool_size=settings["pool_size"], tradeoff=tradeoff)
 

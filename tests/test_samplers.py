@@ -640,7 +640,8 @@ def test_returned_batch_is_the_argmax_of_F_over_the_candidates(scale, metric_nam
     data["row"] = torch.arange(len(data))
     n, k, b, ahead = len(data), 6, 48, 4
     schedule = AdaptiveTradeoff(eta=100.0, sigma=0.3)
-    sampler = GraphCurriculumSampler(metric, k, schedule, neighbours=3, draw_ahead=ahead, scale=scale)
+    sampler = GraphCurriculumSampler(metric, k, schedule, neighbours=3, draw_ahead=ahead, scale=scale,
+                                     diagnostics=True)
     buffer = make_buffer(sampler, data, seed=11, batch=b)
     candidates = torch.randint(n, (ahead, k, b), generator=torch.Generator().manual_seed(11))
     goals, targets = data["desired_goal"][candidates], data["task_goal"][candidates]
@@ -653,6 +654,35 @@ def test_returned_batch_is_the_argmax_of_F_over_the_candidates(scale, metric_nam
         assert objective[chosen[0]] >= objective.max() - 1e-5 * objective.abs().max(), (sample, objective, chosen)
         best_proximity = int((-metric.distance(goals[sample], targets[sample]).sum(-1)).argmax())
         assert batch["diversity_decided"][0].item() == float(chosen[0] != best_proximity)
+
+
+@pytest.mark.parametrize("diagnostics", [False, True])
+def test_info_holds_the_choice_and_its_diagnostics_on_request(diagnostics):
+    # The chosen candidate's F_div, F_prox and λ always; the three diagnostics only with diagnostics=True,
+    # and then equal to their definitions over the K candidates of the sample (one pool: replayable).
+    data = goal_transitions(500, seed=2)
+    k, b, lam = 4, 32, 2.0
+    sampler = GraphCurriculumSampler(EuclideanMetric(), k, lam, neighbours=None, draw_ahead=1, diagnostics=diagnostics)
+    buffer = make_buffer(sampler, data, seed=3, batch=b)
+    batch, info = buffer.sample(return_info=True)
+    basic = {"diversity", "proximity", "tradeoff"}
+    extra = {"diversity_spread", "proximity_spread", "diversity_decided"}
+    assert set(info) - {"index"} == (basic | extra if diagnostics else basic)
+    assert all(batch[key].shape == (b,) and (batch[key] == info[key]).all() for key in set(info) - {"index"})
+    candidates = torch.randint(len(data), (1, k, b), generator=torch.Generator().manual_seed(3))[0]
+    goals, targets = data["desired_goal"][candidates], data["task_goal"][candidates]
+    pairwise = torch.cdist(goals.double(), goals.double()) + torch.diag(torch.full((b,), math.inf)).double()
+    diversity = pairwise.min(-1).values.sum(-1)
+    proximity = -(goals.double() - targets.double()).norm(dim=-1).sum(-1)
+    best = int((diversity + lam * proximity).argmax())
+    assert torch.equal(info["index"], candidates[best])
+    assert info["diversity"].item() == pytest.approx(diversity[best].item(), rel=1e-5)
+    assert info["proximity"].item() == pytest.approx(proximity[best].item(), rel=1e-5)
+    assert info["tradeoff"].item() == lam and info["tradeoff"].dtype == torch.float32
+    if diagnostics:
+        assert info["diversity_spread"].item() == pytest.approx(diversity.std(correction=0).item(), rel=1e-4)
+        assert info["proximity_spread"].item() == pytest.approx((lam * proximity).std(correction=0).item(), rel=1e-4)
+        assert info["diversity_decided"].item() == float(best != int(proximity.argmax()))
 
 
 @pytest.fixture(scope="module")
@@ -679,7 +709,7 @@ def test_standardized_scale_lets_diversity_decide(recorded_push_new):
     for scale in ("raw", "standardized"):
         for lam in (0.1, 1.0, 10.0):
             sampler = GraphCurriculumSampler(
-                push_graph, 8, lam, target_key="task_goal", energy_key="energy", scale=scale
+                push_graph, 8, lam, target_key="task_goal", energy_key="energy", scale=scale, diagnostics=True
             )
             buffer = make_buffer(sampler, data, seed=0, batch=256)
             decided[scale, lam] = sum(buffer.sample()["diversity_decided"][0].item() for _ in range(64)) / 64

@@ -110,10 +110,13 @@ class GraphCurriculumSampler(Sampler):
     equally and a schedule's λ keeps its meaning as a ratio.
 
     ``info`` (a ``TensorDictReplayBuffer`` copies it into every sampled row) holds the chosen
-    candidate's ``diversity`` (F_div) and ``proximity`` (F_prox, raw), the ``tradeoff`` λ, and
-    three diagnostics of the choice: ``diversity_spread`` and ``proximity_spread``, the standard
-    deviations across the K candidates of the two terms as they enter F (F_div and λ·F_prox, after
-    scaling), and ``diversity_decided``, 1.0 when the chosen candidate is not the best-F_prox one.
+    candidate's ``diversity`` (F_div) and ``proximity`` (F_prox, raw) and the ``tradeoff`` λ. With
+    ``diagnostics=True`` it also holds three diagnostics of the choice: ``diversity_spread`` and
+    ``proximity_spread``, the standard deviations across the K candidates of the two terms as they
+    enter F (F_div and λ·F_prox, after scaling), and ``diversity_decided``, 1.0 when the chosen
+    candidate is not the best-F_prox one (gchgg's training logs them). They are off by default
+    because TorchRL's buffer copies every info entry into the batch, one key at a time
+    (``benchmarks/samplers.py`` prints a plain buffer's sample with and without them).
 
     Distances that are ``inf`` (a goal off the graph: outside the field, inside an inflated
     obstacle, or cut off) never produce NaN: in F_prox such a distance counts as
@@ -216,6 +219,7 @@ class GraphCurriculumSampler(Sampler):
             ahead"). Default 8.
         on_write: ``"keep"`` (default) or ``"redraw"``: what a buffer write does to the candidates
             drawn ahead (see "Drawing ahead").
+        diagnostics: also return the choice's diagnostics in ``info`` (see above). Default ``False``.
 
     Example:
         >>> import torch
@@ -255,6 +259,7 @@ class GraphCurriculumSampler(Sampler):
         unreachable_distance: float | None = None,
         draw_ahead: int = 8,
         on_write: str = "keep",
+        diagnostics: bool = False,
     ) -> None:
         for name, m in (("metric", metric), ("diversity_metric", diversity_metric)):
             if m is not None and not isinstance(m, Metric):
@@ -278,6 +283,7 @@ class GraphCurriculumSampler(Sampler):
         self.unreachable_distance = unreachable_distance
         self.draw_ahead = draw_ahead
         self.on_write = on_write
+        self.diagnostics = bool(diagnostics)
         self._energy = EnergySampler(energy_key) if energy_key is not None else None
         self._nearest = NearestNeighbours(self.diversity_metric, neighbours)
         # Per-row cache columns for d-D goals: the point (d + 3), the goal-to-target distance, and the
@@ -337,10 +343,11 @@ class GraphCurriculumSampler(Sampler):
             "diversity": diversity[best],
             "proximity": proximity[best],
             "tradeoff": torch.tensor(lam, dtype=torch.float32),
-            "diversity_spread": div_term.std(correction=0),
-            "proximity_spread": prox_term.std(correction=0),
-            "diversity_decided": torch.tensor(float(best != int(torch.argmax(proximity)))),
         }
+        if self.diagnostics:
+            info["diversity_spread"] = div_term.std(correction=0)
+            info["proximity_spread"] = prox_term.std(correction=0)
+            info["diversity_decided"] = torch.tensor(float(best != int(torch.argmax(proximity))))
         chosen = ahead.start + best if isinstance(ahead, slice) else int(ahead[best])
         return pool.index[chosen], info
 
