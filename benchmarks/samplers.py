@@ -491,7 +491,9 @@ def recorded_search_cost(rounds: int, pool: int = 64) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=5000)
-    parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument("--rounds", type=int, default=21,
+                        help="interleaved rounds per figure, their median printed (default 21: on a shared machine "
+                             "the medians of 7 moved between runs by more than the targets allow)")
     parser.add_argument("--plain-only", action="store_true", help="only the plain-buffer (Euclidean) figures")
     parser.add_argument("--cher-only", action="store_true", help="only CHER against uniform on the push_new buffer")
     parser.add_argument("--storage-only", action="store_true", help="only reading a batch, by storage")
