@@ -340,11 +340,11 @@ def recorded_achieved_goals(size: int, generator: torch.Generator) -> torch.Tens
     """``size`` goals drawn (with replacement) from ``benchmarks/data/push_new_achieved_goals.npy``:
     20,000 achieved goals drawn uniformly from the first 12 iterations of the push_new ``algo=hgg`` run
     of seed 1 (``train.iterations=12 precision=float32 matmul=default`` at e711ab2, on an Intel Xeon;
-    ``benchmarks/record_goals.py`` wrote it from that run's replay files), 836 of them distinct: an
-    object mostly at rest repeats its position. It is kept in git (240 kB), so every checkout measures
-    the recorded case. The figures in docs/benchmarks.md dated before 2026-12-05 read an earlier
-    recording (seed 1 at ccc4ff7, 1,058 distinct), those dated 2026-12-05 another (d6e9109 on an AVX2
-    machine, 1,107 distinct); both were lost with their machines."""
+    ``benchmarks/record_goals.py`` writes it from that run's replay files; it is an output, kept out of
+    git), 836 of them distinct: an object mostly at rest repeats its position. The figures in
+    docs/benchmarks.md dated before 2026-12-05 read an earlier recording (seed 1 at ccc4ff7, 1,058
+    distinct), those dated 2026-12-05 another (d6e9109 on an AVX2 machine, 1,107 distinct); both were
+    lost with their machines."""
     achieved = torch.from_numpy(np.load(RECORDED_GOALS))
     return achieved[torch.randint(len(achieved), (size,), generator=generator)]
 
@@ -517,7 +517,7 @@ def main() -> None:
     if RECORDED_GOALS.exists():
         plain_buffer_speed(args.rounds, recorded=True)
         recorded_search_cost(args.rounds)
-    else:  # committed; benchmarks/record_goals.py writes it again from a run's replay files
+    else:  # an output: benchmarks/record_goals.py writes it from a run's replay files
         print(f"plain buffer with a recorded buffer's achieved goals: skipped, {RECORDED_GOALS.relative_to(ROOT)} "
               "is missing (benchmarks/record_goals.py writes it)")
 
