@@ -135,6 +135,35 @@ def test_ebp_follows_every_write_and_draws_as_a_sampler_built_afresh():
     assert sampler.cache_bytes == 500 * 8  # a float64 per row of the capacity
 
 
+def test_ebp_runs_follow_writes_that_split_and_merge_them():
+    # Single rows and short stretches written with their neighbours' energy (merging runs), a new
+    # one (splitting them) or 0, at the ends too: after each write the run starts kept up to date
+    # equal those of a full scan (every position where the energy differs from the one before).
+    g = torch.Generator().manual_seed(9)
+    energy = torch.tensor([1.0, 2.0, 0.0, 3.0]).repeat_interleave(5)  # 4 runs of 5 rows
+    buffer = make_buffer(EnergySampler(), goal_transitions(20, energy=energy), size=40, batch=8)
+    sampler, stored = buffer.sampler, energy.clone()
+    buffer.sample()
+    for _ in range(60):
+        n = len(buffer)
+        first = int(torch.randint(n, (1,), generator=g))
+        rows = torch.arange(first, min(n, first + int(torch.randint(1, 4, (1,), generator=g))))
+        choice = int(torch.randint(4, (1,), generator=g))
+        if choice == 0:  # a neighbour's energy
+            neighbour = first - 1 if first else min(int(rows[-1]) + 1, n - 1)
+            value = torch.full((len(rows),), float(stored[neighbour]))
+        elif choice == 1:
+            value = torch.zeros(len(rows))
+        else:
+            value = torch.rand(len(rows), generator=g).round(decimals=1)  # repeats now and then
+        buffer[rows] = goal_transitions(len(rows), energy=value)
+        sampler.mark_update(rows)
+        stored[rows] = value
+        buffer.sample()
+        expected = [0] + [i for i in range(1, n) if stored[i] != stored[i - 1]]
+        assert sampler._starts.tolist() == expected
+
+
 def test_ebp_rejects_negative_energy():
     buffer = make_buffer(EnergySampler(), goal_transitions(10, energy=-torch.ones(10)))
     with pytest.raises(ValueError, match="finite and >= 0"):

@@ -47,11 +47,32 @@ class _Runs:
     below_total: float  # the largest float64 below total: where draws are clamped
 
     @staticmethod
-    def of(energy: torch.Tensor) -> _Runs | None:
-        n = len(energy)
-        change = torch.ones(n, dtype=torch.bool)
+    def starts(energy: torch.Tensor) -> torch.Tensor:
+        """First row of every run of equal consecutive energies (zero-energy runs too), in order: O(n)."""
+        change = torch.ones(len(energy), dtype=torch.bool)
         change[1:] = energy[1:] != energy[:-1]
-        start = change.nonzero().squeeze(-1)
+        return change.nonzero().squeeze(-1)
+
+    @staticmethod
+    def moved_starts(starts: torch.Tensor, energy: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+        """:meth:`starts` of ``energy`` after ``rows`` were written (or appended), from the starts before:
+        only a written row and the row after it can open or stop opening a run. O(len(rows) + runs)."""
+        n = len(energy)
+        touched = torch.cat([rows, rows + 1]).unique()  # sorted
+        touched = touched[touched < n]
+        opens = (touched == 0) | (energy[touched] != energy[(touched - 1).clamp_(min=0)])
+        if not len(touched):
+            return starts
+        at = torch.searchsorted(touched, starts).clamp_(max=len(touched) - 1)
+        kept = starts[touched[at] != starts]  # the starts of untouched rows (a sorted lookup: faster than isin)
+        return torch.cat([kept, touched[opens]]).sort().values
+
+    @staticmethod
+    def of(energy: torch.Tensor, start: torch.Tensor | None = None) -> _Runs | None:
+        """The drawable runs of ``energy`` (``None`` if no row has energy), from its run starts when given."""
+        n = len(energy)
+        if start is None:
+            start = _Runs.starts(energy)
         length = torch.diff(start, append=torch.tensor([n]))
         weight = energy[start] * length
         drawable = weight > 0  # zero-energy runs are never drawn
@@ -77,8 +98,9 @@ class EnergySampler(Sampler):
     uniformly within the episode, as the original EBP buffer does.
 
     Cost: consecutive rows of equal energy (an episode's copies) are merged into runs; the runs'
-    cumulative energies are cached and rebuilt (O(n)) on the first ``sample`` after the buffer
-    writes (``extend``/``add``), with a guide table (Chen & Asau's indexed search): each draw is
+    cumulative energies are cached and rebuilt on the first ``sample`` after the buffer writes
+    (``extend``/``add``; O(written rows + runs): only a written row and the one after it can start or
+    end a run), with a guide table (Chen & Asau's indexed search): each draw is
     then two table reads and two forward steps, O(1) (a binary search over the few draws whose
     bin holds more than two run boundaries). The rows' energies are kept in a float64 copy (8 bytes
     per row of the storage's capacity, :attr:`cache_bytes`): a rebuild reads from the storage only
@@ -109,6 +131,7 @@ class EnergySampler(Sampler):
         self._energy: torch.Tensor | None = None  # float64 energy + epsilon per stored row, valid as _written says
         self._written = WrittenRows()
         self._cached_runs: _Runs | None = None  # valid while self._written.current(len(storage))
+        self._starts: torch.Tensor | None = None  # first row of every run of equal energies (_Runs.starts)
 
     @property
     def cache_bytes(self) -> int:
@@ -151,12 +174,16 @@ class EnergySampler(Sampler):
         if self._written.current(n):
             return self._cached_runs
         rows = self._written.take(n, 0 if self._energy is None else len(self._energy))
+        energy = None if self._energy is None else self._energy[:n]
         if rows is None:  # everything: size the copy to the storage's capacity
             self._energy = torch.empty(max(n, int(getattr(storage, "max_size", n) or n)), dtype=torch.float64)
-            self._energy[:n] = self._read(storage, None, n)
+            energy = self._energy[:n]
+            energy[:] = self._read(storage, None, n)
+            self._starts = _Runs.starts(energy)
         elif len(rows):
-            self._energy[rows] = self._read(storage, rows, len(rows))
-        self._cached_runs = _Runs.of(self._energy[:n])
+            energy[rows] = self._read(storage, rows, len(rows))
+            self._starts = _Runs.moved_starts(self._starts, energy, rows)
+        self._cached_runs = _Runs.of(energy, self._starts)
         return self._cached_runs
 
     def _read(self, storage: Storage, rows: torch.Tensor | None, count: int) -> torch.Tensor:
@@ -182,7 +209,7 @@ class EnergySampler(Sampler):
         self._written.mark(index)
 
     def _empty(self) -> None:
-        self._energy = self._cached_runs = None
+        self._energy = self._cached_runs = self._starts = None
         self._written.reset()
 
     def state_dict(self) -> dict[str, Any]:
