@@ -25,8 +25,9 @@ BLAS or converted to oneDNN (:mod:`gchgg.linear`). A :class:`~gchgg.linear.OneDN
 products are computed as it computes them, by oneDNN in the products' precision (float32, or
 bfloat16 with ``precision=bfloat16``: operands and results rounded, float32 accumulation), so the
 fused update equals the autograd update bit for bit in every setting (``tests/test_fused_update.py``);
-with bfloat16 it also keeps the hidden activations in bfloat16 and rounds each weight once per update
-rather than once per product (``_Products``).
+with bfloat16 it also keeps the hidden activations in bfloat16, rounds an online network's weight once
+per update and a target network's only after it moved (every ``target_update_every``-th update) rather
+than once per product, and lets oneDNN apply each hidden ReLU inside its product (``_Products``).
 """
 
 from __future__ import annotations
@@ -76,40 +77,51 @@ class _Products:
 
     A :class:`OneDNNLinear` layer given a batch of at least :data:`MIN_BATCH` rows multiplies on oneDNN
     in the products' dtype (operands rounded to it, results in it); every other layer multiplies in
-    float32 on torch's BLAS (``addmm``/``mm``). A layer's weight is rounded once per update and serves
-    the forward passes and the backward. Activations stay in the dtype they were computed in: ReLU and
-    its backward commute with rounding to bfloat16, so keeping a bfloat16 result instead of its float32
-    copy (what autograd's layers return) changes no value and saves two conversions per layer.
+    float32 on torch's BLAS (``addmm``/``mm``). A layer's weight is rounded once per update (a target
+    network's once after it moved) and serves the forward passes and the backward; a hidden oneDNN
+    layer's ReLU is applied by oneDNN before it rounds the product (the same values: rounding is
+    monotone and keeps 0). Activations stay in the dtype they were computed in: ReLU and its backward
+    commute with rounding to bfloat16, so keeping a bfloat16 result instead of its float32 copy (what
+    autograd's layers return) changes no value and saves two conversions per layer.
     """
 
-    def __init__(self, layers: list[nn.Linear], dtype: torch.dtype) -> None:
+    def __init__(self, layers: list[nn.Linear], dtype: torch.dtype, rounded: dict | None = None) -> None:
         self.layers = layers
         self.dtype = dtype
-        self._weights: dict[int, torch.Tensor] = {}  # layer index -> weight in the products' dtype
+        # layer index -> (weight's data pointer and version, weight in the products' dtype): kept across
+        # updates when given (a target network's, moved every n-th update), so an unchanged weight is not
+        # rounded again; the in-place changes such a weight sees (lerp_, load_state_dict's copy_) bump its
+        # version. Not for weights a fused optimiser steps: its kernel leaves the version as it was.
+        self._rounded = {} if rounded is None else rounded
 
     def onednn(self, i: int, x: torch.Tensor) -> bool:
         """Whether layer ``i`` computes its product with ``x`` on oneDNN (as :class:`OneDNNLinear` would)."""
         return type(self.layers[i]) is OneDNNLinear and x.shape[0] >= MIN_BATCH
 
     def weight(self, i: int) -> torch.Tensor:
-        """Layer ``i``'s weight in the products' dtype, rounded once per update."""
-        if i not in self._weights:
-            self._weights[i] = self.layers[i].weight.to(self.dtype)
-        return self._weights[i]
+        """Layer ``i``'s weight in the products' dtype, rounded again only after the weight changed."""
+        weight = self.layers[i].weight
+        stamp = (weight.data_ptr(), weight._version)
+        kept = self._rounded.get(i)
+        if kept is None or kept[0] != stamp:
+            kept = self._rounded[i] = (stamp, weight.detach().to(self.dtype))
+        return kept[1]
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         """``[x_0, h_1, …, h_{L-1}, y]``: each layer's input as its product used it (ReLU outputs after
         the first) and the last layer's float32 output."""
-        outputs = []
+        outputs, last = [], len(self.layers) - 1
         for i, layer in enumerate(self.layers):
             if self.onednn(i, x):
                 x = x.to(self.dtype)
-                y = onednn_linear(x, self.weight(i), layer.bias)
+                y = onednn_linear(x, self.weight(i), layer.bias, relu=i < last)  # the ReLU fused into the product
             else:
                 x = x.float()
                 y = torch.addmm(layer.bias, x, layer.weight.t())
+                if i < last:
+                    y.relu_()
             outputs.append(x)
-            x = y.relu_() if i < len(self.layers) - 1 else y.float()
+            x = y if i < last else y.float()
         outputs.append(x)
         return outputs
 
@@ -189,6 +201,10 @@ class FusedDDPGUpdate:
         self._dtype = getattr(torch, precision)
         self._layers = {name: _relu_mlp_layers(getattr(loss, name).mlp)
                         for name in ("actor", "critic", "target_actor", "target_critic")}  # fmt: skip
+        # The target networks' rounded weights, kept across updates (see _Products). Only theirs: they move
+        # in place by lerp_ and load_state_dict, which bump a tensor's version; a fused optimiser's step
+        # (the online networks') does not.
+        self._rounded: dict[str, dict] = {"target_actor": {}, "target_critic": {}}
         self._saved: tuple | None = None
 
     @torch.no_grad()
@@ -205,7 +221,8 @@ class FusedDDPGUpdate:
         loss, actor = self.loss, self.loss.actor
         normalize = lambda o, g: torch.cat([actor.observation_normalizer(o), actor.goal_normalizer(g)], -1)  # noqa: E731
         next_x = normalize(next_observation, goal)
-        products = {name: _Products(layers, self._dtype) for name, layers in self._layers.items()}  # this update's
+        products = {name: _Products(layers, self._dtype, self._rounded.get(name))
+                    for name, layers in self._layers.items()}  # fmt: skip
         next_action = products["target_actor"].forward(next_x)[-1].tanh_()
         next_value = products["target_critic"].forward(torch.cat([next_x, next_action], -1))[-1]
         if loss.clip_return:

@@ -98,12 +98,13 @@ def products_in(precision: str) -> Iterator[None]:
         _product_dtype = previous
 
 
-def onednn_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+def onednn_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, relu: bool = False) -> torch.Tensor:
     """``x·weightᵀ + bias`` by oneDNN in the dtype of ``x`` and ``weight`` (float32 accumulation; a
     float32 ``bias`` beside bfloat16 operands is added before the result is rounded); ``x`` [B, in] and
-    ``weight`` [out, in] may be strided views. :class:`OneDNNLinear` and
-    :class:`gchgg.fused_update.FusedDDPGUpdate` compute their products with it."""
-    return torch.ops.mkldnn._linear_pointwise(x, weight, bias, "none", [], "")
+    ``weight`` [out, in] may be strided views. With ``relu=True`` oneDNN applies the ReLU before it rounds
+    the result, which gives the same values as a ReLU after (rounding is monotone and keeps 0).
+    :class:`OneDNNLinear` and :class:`gchgg.fused_update.FusedDDPGUpdate` compute their products with it."""
+    return torch.ops.mkldnn._linear_pointwise(x, weight, bias, "relu" if relu else "none", [], "")
 
 
 def _product(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:

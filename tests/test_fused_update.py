@@ -202,3 +202,26 @@ def test_a_reward_of_the_wrong_shape_is_refused_like_the_loss_module_does():
     values[4] = values[4].reshape(-1)
     with pytest.raises(ValueError, match=r"the reward must be \[B, 1\]"):
         FusedDDPGUpdate(loss_module((16,))).forward(*values)
+
+
+@pytest.mark.parametrize("precision", ONEDNN_PRECISIONS)
+def test_fused_update_follows_target_networks_moved_or_loaded_in_place(precision):
+    # The fused update keeps the target networks' rounded weights between updates; a target update
+    # (lerp_) and a loaded state (copy_) must both reach them, as they reach autograd's update.
+    def agent(gradients: str, seed: int = 0) -> DDPGAgent:
+        made = DDPGAgent(OBS, GOAL, ACT, hidden=(64, 64), generator=torch.Generator().manual_seed(seed),
+                         matmul="onednn", precision=precision, gradients=gradients)  # fmt: skip
+        made.update_normalizer(*tensors(200, 5)[:2])
+        return made
+
+    agents = [agent("fused"), agent("autograd")]
+    other = agent("autograd", seed=1)
+    for step in range(3):
+        other.update(batch_of(tensors(80, 60 + step)))
+    for step in range(22):  # across a target update (every 20th)
+        batch = batch_of(tensors(80, 30 + step))
+        assert agents[0].update(batch) == agents[1].update(batch), step
+    for made in agents:
+        made.load_state_dict(other.state_dict())  # other target networks, copied into the same tensors
+    batch = batch_of(tensors(80, 99))
+    assert agents[0].update(batch) == agents[1].update(batch)
