@@ -88,7 +88,7 @@ class _Products:
     def __init__(self, layers: list[nn.Linear], dtype: torch.dtype, rounded: dict | None = None) -> None:
         self.layers = layers
         self.dtype = dtype
-        # layer index -> (weight's data pointer and version, weight in the products' dtype): kept across
+        # layer index -> (weight, its data pointer and version, it in the products' dtype): kept across
         # updates when given (a target network's, moved every n-th update), so an unchanged weight is not
         # rounded again; the in-place changes such a weight sees (lerp_, load_state_dict's copy_) bump its
         # version. Not for weights a fused optimiser steps: its kernel leaves the version as it was.
@@ -103,9 +103,9 @@ class _Products:
         weight = self.layers[i].weight
         stamp = (weight.data_ptr(), weight._version)
         kept = self._rounded.get(i)
-        if kept is None or kept[0] != stamp:
-            kept = self._rounded[i] = (stamp, weight.detach().to(self.dtype))
-        return kept[1]
+        if kept is None or kept[0] is not weight or kept[1] != stamp:  # another tensor, or changed
+            kept = self._rounded[i] = (weight, stamp, weight.detach().to(self.dtype))
+        return kept[2]
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         """``[x_0, h_1, …, h_{L-1}, y]``: each layer's input as its product used it (ReLU outputs after

@@ -60,9 +60,9 @@ class _Runs:
         n = len(energy)
         touched = torch.cat([rows, rows + 1]).unique()  # sorted
         touched = touched[touched < n]
-        opens = (touched == 0) | (energy[touched] != energy[(touched - 1).clamp_(min=0)])
         if not len(touched):
             return starts
+        opens = (touched == 0) | (energy[touched] != energy[(touched - 1).clamp_(min=0)])
         at = torch.searchsorted(touched, starts).clamp_(max=len(touched) - 1)
         kept = starts[touched[at] != starts]  # the starts of untouched rows (a sorted lookup: faster than isin)
         return torch.cat([kept, touched[opens]]).sort().values
