@@ -15,10 +15,10 @@ original's per-episode loop; C = 1 collects all episodes with one policy, then r
 trainer per C and their iterations in alternating rounds, and the ratio C=50 / C=1 printed. Then
 wall-clock seconds per gchgg iteration with evaluation in-line, in the background process and
 without evaluation (``--overlap``), the background line ("everything on": each iteration beside the
-previous one's evaluation, as in a run's steady state) against the fp32 floor: the same raw steps plus
-bare fp32 updates with torch's default matmul, measured at the start and again after the overlap (this
-machine drifts), their mean; last, two gchgg runs in two processes at once against one alone, each as
-training runs by default (``--side-by-side``).
+previous one's evaluation, as in a run's steady state) against the fp32 floor (the same raw steps plus
+bare fp32 updates with torch's default matmul) in alternating rounds, the median of their ratios; last,
+two gchgg runs in two processes at once against one alone, each as training runs by default
+(``--side-by-side``).
 
 The networks' products run on ``--matmul`` (default ``auto``, the trainer's default: oneDNN where
 measured faster, ``gchgg.linear.ONEDNN_FASTER``, or for bfloat16 products), the bare updates of the
@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import statistics
 import sys
 import tempfile
@@ -234,17 +235,19 @@ def chunk_seconds(
     return {c: _medians(r) for c, r in rows.items()}, rounds
 
 
-def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str = "auto") -> float:
+def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str = "auto") -> tuple[float, float]:
     """Wall-clock seconds per gchgg iteration with evaluation in-line, in the background process
     (``eval.background=true``) and without evaluation, in one run (after one untimed iteration each);
     each iteration also writes its checkpoint and metrics, as training does by default, so the
-    background line is an iteration with everything on. Returns that line's seconds.
+    background line is an iteration with everything on. Returns the background line's seconds and
+    ``everything on / fp32 floor``.
 
-    In the background each timed iteration trains beside the previous iteration's evaluation, as in a
-    run's steady state: the untimed iteration's evaluation runs beside the first timed one, and the last
-    timed iteration's evaluation, which a run waits for once at its end, is not timed. An evaluation
-    slower than an iteration would pile up behind the trainer, so the line is the larger of the
-    iteration's seconds and the median seconds of an evaluation beside an iteration (in the worker)."""
+    The background iterations are timed as a run's steady state, in rounds against the fp32 floor
+    (this machine drifts between minutes): each round times the floor (raw steps plus bare fp32
+    updates) with the evaluation worker paused (SIGSTOP), then one iteration beside the previous
+    iteration's evaluation, until both are done (an evaluation slower than an iteration counts
+    whole). The ratio is the median of the rounds' ratios; the last evaluation, which a run waits for
+    once at its end, is not timed."""
     wall = {}
     for mode, extra in (("without evaluation", ["eval.every=1000"]), ("in-line evaluation", []),
                         ("background evaluation", ["eval.background=true"])):  # fmt: skip
@@ -259,26 +262,51 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
                 trainer.evaluations.start_background(threads, matmul)
             try:
                 trainer.step()  # untimed: fills the buffer; in the background its evaluation runs beside the next
-                start = time.perf_counter()
-                for _ in range(iterations):  # as training runs each iteration (checkpoint.every=1)
-                    trainer.step()
-                wall[mode] = (time.perf_counter() - start) / iterations
-                trainer.evaluations.collect(trainer.history, wait=True)  # untimed: the run's end waits once
+                if cfg.eval.background:
+                    rounds = [_steady_round(trainer, updates) for _ in range(iterations)]
+                else:
+                    start = time.perf_counter()
+                    for _ in range(iterations):  # as training runs each iteration (checkpoint.every=1)
+                        trainer.step()
+                    wall[mode] = (time.perf_counter() - start) / iterations
             finally:
                 trainer.evaluations.close()
-        detail = ""
-        if cfg.eval.background:  # the evaluations of the untimed and all but the last timed iteration
-            beside = statistics.median(row["seconds_eval_background"] for row in trainer.history[:iterations])
-            detail = f"; an evaluation beside an iteration {beside:.2f} s in the worker"
-            wall[mode] = max(wall[mode], beside)
-        print(f"gchgg {mode:22s} {wall[mode]:6.2f} s/iteration (wall clock, {iterations} iterations, "
-              f"each with its checkpoint{detail})", flush=True)
+        if cfg.eval.background:
+            wall[mode] = statistics.median(seconds for _, seconds in rounds)
+            floor = statistics.median(floor for floor, _ in rounds)
+            ratios = [seconds / floor for floor, seconds in rounds]
+            print(f"gchgg {mode:22s} {wall[mode]:6.2f} s/iteration (wall clock, median of {iterations} rounds, each "
+                  f"beside the previous iteration's evaluation, with its checkpoint; the fp32 floor in those "
+                  f"rounds: {floor:.2f} s)", flush=True)
+        else:
+            print(f"gchgg {mode:22s} {wall[mode]:6.2f} s/iteration (wall clock, {iterations} iterations, "
+                  "each with its checkpoint)", flush=True)
     base = wall["without evaluation"]
     print(f"in-line / without = {wall['in-line evaluation'] / base:.2f}; "
           f"background / without = {wall['background evaluation'] / base:.2f} (target <= 1.1)")
     print(f"everything on (background evaluation, checkpoints): {wall['background evaluation']:.2f} s/iteration "
           "(target <= 18 s on a 2-core machine)")
-    return wall["background evaluation"]
+    ratio = statistics.median(ratios)
+    print(f"everything on / fp32 floor = {ratio:.2f} (target <= 1.0; the median of {iterations} rounds' ratios: "
+          f"{', '.join(f'{r:.2f}' for r in ratios)})")
+    return wall["background evaluation"], ratio
+
+
+def _steady_round(trainer: Trainer, updates: int) -> tuple[float, float]:
+    """One round of :func:`evaluation_overlap`'s background timing: ``(fp32 floor, iteration)`` seconds."""
+    worker = trainer.evaluations.background.pid
+    os.kill(worker, signal.SIGSTOP)  # the previous iteration's evaluation waits while the floor runs alone
+    try:
+        env_s, update_s = floor_seconds(50, 100, updates, 256, "default")
+    finally:
+        os.kill(worker, signal.SIGCONT)
+    previous = trainer.history[-1]
+    start = time.perf_counter()
+    trainer.step()
+    while "success_rate" not in previous:  # its evaluation, beside this iteration, is done too
+        time.sleep(0.005)
+        trainer.evaluations.collect(trainer.history)
+    return env_s + update_s, time.perf_counter() - start
 
 
 def everything_on(iterations: int, updates: int, threads: int, matmul: str = "auto") -> float:
@@ -373,13 +401,7 @@ def main() -> None:
         print(f"gchgg C=50 / C=1 = {statistics.median(ratios):.2f} (target <= 1.2): the median over "
               f"{len(ratios)} alternating rounds of the ratio within a round ({', '.join(f'{r:.2f}' for r in ratios)})")
     if args.overlap:
-        on = evaluation_overlap(args.overlap, args.updates, args.threads, args.matmul)
-        env_again, update_again = floor_seconds(50, 100, args.updates, 256, "default")  # the machine drifts
-        floors = (fp32_floor, env_again + update_again)
-        print(f"fp32 floor again: {floors[1]:.2f} s  (raw dm_control steps {env_again:.2f} s + bare fp32 DDPG "
-              f"updates {update_again:.2f} s)")
-        print(f"everything on / fp32 floor = {on / statistics.mean(floors):.2f} (target <= 1.0; against the mean "
-              f"of the fp32 floors before and after, {statistics.mean(floors):.2f} s)")
+        evaluation_overlap(args.overlap, args.updates, args.threads, args.matmul)
     if args.side_by_side:
         side_by_side(args.side_by_side, args.updates, args.threads, args.matmul)
 

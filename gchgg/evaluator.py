@@ -107,6 +107,11 @@ class BackgroundEvaluator:
         self._process.start()
         self.in_flight = 0
 
+    @property
+    def pid(self) -> int | None:
+        """The worker's process id (``benchmarks/iteration.py`` pauses it while it times the floor)."""
+        return self._process.pid
+
     def submit(self, iteration: int, policy_state: dict, state: dict | None) -> None:
         """Queue an evaluation of ``policy_state`` (``state``: the env state to start from, or ``None`` to
         go on from the previous evaluation's)."""
