@@ -5,11 +5,13 @@ the trainer. On a machine whose cores are its own that costs the trainer nothing
 share hardware (hyperthreads of one physical core, a busy host) each process slows the other. This
 script times two fixed pieces of a training iteration's work, one thread each: 200 bare fp32 DDPG
 updates of 256 (``benchmarks/agent_update.py``'s ``BareDDPG``) and 1,000 raw dm_control
-``Environment.step`` calls on push_new (an evaluation's work). Each is timed alone and beside a
-second process that steps push_new's physics without pause, in alternating rounds, and the median of
-the rounds' ratios is printed. ``benchmarks/iteration.py``'s ``background / without`` and
-``side by side`` lines read against it: where a busy neighbour costs 1.2x, so does an evaluation in
-the background.
+``Environment.step`` calls on push_new (an evaluation's work), and a third that touches no memory
+beyond the core's own: a pure-Python arithmetic loop. Each is timed alone and beside a second
+process that steps push_new's physics without pause, in alternating rounds, and the median of the
+rounds' ratios is printed. Where the loop is slowed as much as the rest, the two CPUs share a core
+(hyperthreads, or a host that runs other work on them); where it is not, what they share is caches
+and memory. ``benchmarks/iteration.py``'s ``background / without`` and ``side by side`` lines read
+against it: where a busy neighbour costs 1.2x, so does an evaluation in the background.
 
     python benchmarks/cores.py [--rounds 7]
 """
@@ -73,7 +75,15 @@ def main() -> None:
             env.step(actions[i % 100])
         return time.perf_counter() - start
 
-    work = {"200 bare fp32 DDPG updates": updates, "1,000 raw dm_control steps": physics}
+    def loop() -> float:
+        start = time.perf_counter()
+        total = 0
+        for i in range(3_000_000):
+            total += i * i
+        return time.perf_counter() - start
+
+    work = {"200 bare fp32 DDPG updates": updates, "1,000 raw dm_control steps": physics,
+            "a pure-Python loop of 3,000,000 multiply-adds (no memory traffic)": loop}
     for run in work.values():  # warm-up
         run()
     times = {(name, where): [] for name in work for where in ("alone", "beside")}
