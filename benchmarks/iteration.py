@@ -304,8 +304,10 @@ def _steady_round(trainer: Trainer, updates: int) -> tuple[float, float]:
     start = time.perf_counter()
     trainer.step()
     while "success_rate" not in previous:  # its evaluation, beside this iteration, is done too
+        if time.perf_counter() - start > 900:
+            raise RuntimeError(f"the evaluation of iteration {previous['iteration']} did not come back in 15 minutes")
         time.sleep(0.005)
-        trainer.evaluations.collect(trainer.history)
+        trainer.evaluations.collect(trainer.history)  # raises if the worker failed
     return env_s + update_s, time.perf_counter() - start
 
 
