@@ -273,8 +273,8 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
                 trainer.evaluations.close()
         if cfg.eval.background:
             wall[mode] = statistics.median(seconds for _, seconds in rounds)
-            floor = statistics.median(floor for floor, _ in rounds)
-            ratios = [seconds / floor for floor, seconds in rounds]
+            floor = statistics.median(round_floor for round_floor, _ in rounds)
+            ratios = [seconds / round_floor for round_floor, seconds in rounds]
             print(f"gchgg {mode:22s} {wall[mode]:6.2f} s/iteration (wall clock, median of {iterations} rounds, each "
                   f"beside the previous iteration's evaluation, with its checkpoint; the fp32 floor in those "
                   f"rounds: {floor:.2f} s)", flush=True)
