@@ -21,7 +21,7 @@ optimisers, the target-update schedule, exploration, the value function HGG need
 tensor path, differentiated by autograd or by hand with the same result bit for bit
 (:mod:`gchgg.fused_update`, the default; ``benchmarks/agent_update.py`` times both). Its ``matmul``
 argument picks who computes the wide layers' matrix products (:mod:`gchgg.linear`: oneDNN where
-measured faster); it changes speed, not the math.
+measured faster); it changes speed, not the math. So does ``subnormals`` (:mod:`gchgg.subnormal`).
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ from torchrl.modules import MLP
 
 from gchgg.fused_update import FusedDDPGUpdate, unsupported
 from gchgg.linear import MIN_BATCH, products_in, resolve_matmul, resolve_precision, use_onednn
-from gchgg.validation import check_number
+from gchgg.subnormal import SUBNORMALS, flush_subnormals
+from gchgg.validation import check_choice, check_number
 
 __all__ = [
     "GRADIENTS",
@@ -525,6 +526,9 @@ class DDPGAgent:
         gradients: how :meth:`update` computes the gradients, one of :data:`GRADIENTS` (``"auto"``: by
             hand where that applies; resolved into :attr:`gradients`). Speed only, like ``matmul``:
             the gradients are autograd's.
+        subnormals: ``"flush"`` (default) runs :meth:`update` with subnormal floats flushed to zero
+            (:mod:`gchgg.subnormal`: Adam's moments of units that stopped firing decay into that slow
+            range; flushed, the networks come out the same bit for bit), ``"keep"`` with IEEE arithmetic.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
     The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
@@ -560,6 +564,7 @@ class DDPGAgent:
         matmul: str = "auto",
         precision: str = "float32",
         gradients: str = "auto",
+        subnormals: str = "flush",
         **overrides: Any,
     ) -> None:
         unknown = set(overrides) - {f.name for f in fields(DDPGConfig)}
@@ -567,6 +572,8 @@ class DDPGAgent:
             raise TypeError(f"unknown DDPGAgent settings {sorted(unknown)}; the settings are DDPGConfig's fields")
         config = replace(config or DDPGConfig(), **overrides)
         self.config = config
+        check_choice("subnormals", subnormals, SUBNORMALS)
+        self.subnormals = subnormals
         self.obs_dim, self.goal_dim, self.action_dim = int(obs_dim), int(goal_dim), int(action_dim)
         self.gamma = float(config.gamma)
         self.polyak = float(config.polyak)
@@ -742,7 +749,7 @@ class DDPGAgent:
         Raises:
             FloatingPointError: a loss is NaN or inf; no parameter is changed.
         """
-        with products_in(self.precision):
+        with products_in(self.precision), flush_subnormals(self.subnormals == "flush"):
             return self._update(batch)
 
     def _update(self, batch: TensorDictBase) -> dict[str, float]:

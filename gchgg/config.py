@@ -39,6 +39,7 @@ from gchgg.graph import GoalGraph
 from gchgg.hgg import HGGGoalGenerator, TrajectoryPool
 from gchgg.linear import MATMUL_BACKENDS, PRECISIONS
 from gchgg.samplers import AdaptiveTradeoff, CherSampler, ExponentialTradeoff, FixedTradeoff, GraphCurriculumSampler
+from gchgg.subnormal import SUBNORMALS
 from gchgg.transforms import HindsightRelabel
 from gchgg.validation import check_choice, check_number
 
@@ -313,6 +314,7 @@ class RunConfig:
     matmul: str = "auto"  # the wide layers' products: auto (oneDNN for bfloat16, or where faster) | onednn | default
     precision: str = "auto"  # their dtype in updates: auto (bfloat16 where native) | float32 | bfloat16
     gradients: str = "auto"  # of the updates: auto (by hand wherever the networks allow) | fused | autograd
+    subnormals: str = "flush"  # in updates: flush (to zero: fast, same networks; gchgg.subnormal) | keep
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     graph: GraphConfig | None = None  # the graph=default group; null where no metric is the graph
@@ -338,6 +340,7 @@ class RunConfig:
         check_choice("matmul", self.matmul, MATMUL_BACKENDS)
         check_choice("precision", self.precision, PRECISIONS)
         check_choice("gradients", self.gradients, GRADIENTS)
+        check_choice("subnormals", self.subnormals, SUBNORMALS)
 
 
 def register() -> None:

@@ -22,7 +22,8 @@ nothing (but its length, logging and the like) continues exactly as ``resume=tru
 two forks of a pair (same checkpoint, same new seed) draw the same targets at the fork point.
 
 **May differ**: :data:`MAY_DIFFER`. How the products are computed (``threads``, ``matmul``,
-``precision``, ``gradients``) may: the carried parameters are float32 whatever the products' dtype. The metric
+``precision``, ``gradients``, ``subnormals``) may: the carried parameters are float32 whatever the
+products' dtype. The metric
 (``algo.metric``, ``graph.*``) and HGG's parameters (``env.stop_threshold``, ``hgg.c``, ``hgg.L``)
 may, because no carried state depends on them: the pool holds raw achieved-goal trajectories, HGG's
 ``max_dis`` is recomputed with the fork's metric, and the stop flag is carried as it is (a stop
@@ -64,7 +65,7 @@ log = logging.getLogger(__name__)
 RECORD = "fork.yaml"
 SOURCE_CONFIG = "config.yaml"
 MAY_DIFFER = (
-    "seed", "resume", "init_from", "threads", "matmul", "precision", "gradients",
+    "seed", "resume", "init_from", "threads", "matmul", "precision", "gradients", "subnormals",
     "algo.name", "algo.sampler", "algo.metric", "graph", "graph.*",
     "curriculum", "curriculum.*", "tradeoff", "tradeoff.*", "cher", "cher.*",  # a section, or null where unread
     "env.stop_threshold", "hgg.c", "hgg.L",

@@ -131,7 +131,7 @@ def make_parts(cfg: DictConfig) -> Parts:
     )  # fmt: skip
     agent = DDPGAgent(env.obs_dim, 3, env.action_dim, run.agent.ddpg(),
                       generator=torch.Generator().manual_seed(seeds["agent"]), matmul=cfg.matmul,
-                      precision=cfg.precision, gradients=cfg.gradients)
+                      precision=cfg.precision, gradients=cfg.gradients, subnormals=cfg.subnormals)
     goal_generator = None
     if algo.goal_generator != "none":
         goal_generator = make_goal_generator(
