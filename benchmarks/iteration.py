@@ -272,13 +272,13 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
             finally:
                 trainer.evaluations.close()
         if cfg.eval.background:
-            floor, wall[mode], step_s, eval_s = (statistics.median(column) for column in zip(*rounds, strict=True))
+            floor, wall[mode], step_s, wait_s = (statistics.median(column) for column in zip(*rounds, strict=True))
             ratios = [seconds / round_floor for round_floor, seconds, _, _ in rounds]
             print(f"gchgg {mode:22s} {wall[mode]:6.2f} s/iteration (wall clock, median of {iterations} rounds, each "
                   f"beside the previous iteration's evaluation, with its checkpoint; the fp32 floor in those "
                   f"rounds: {floor:.2f} s)", flush=True)
-            print(f"  in those rounds: the iteration {step_s:.2f} s, the evaluation beside it {eval_s:.2f} s "
-                  f"(each the median of {iterations}; a round lasts until both are done)", flush=True)
+            print(f"  in those rounds: the iteration {step_s:.2f} s, then {wait_s:.2f} s waiting for the evaluation "
+                  f"beside it (each the median of {iterations})", flush=True)
         else:
             print(f"gchgg {mode:22s} {wall[mode]:6.2f} s/iteration (wall clock, {iterations} iterations, "
                   "each with its checkpoint)", flush=True)
@@ -295,7 +295,8 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
 
 def _steady_round(trainer: Trainer, updates: int) -> tuple[float, float, float, float]:
     """One round of :func:`evaluation_overlap`'s background timing: seconds of ``(fp32 floor, round, the
-    iteration alone in it, the evaluation beside it)``; the round lasts until both are done."""
+    iteration in it, the wait after the iteration for the evaluation beside it)``; the round lasts until
+    both are done."""
     worker = trainer.evaluations.background.pid
     os.kill(worker, signal.SIGSTOP)  # the previous iteration's evaluation waits while the floor runs alone
     try:
@@ -311,7 +312,8 @@ def _steady_round(trainer: Trainer, updates: int) -> tuple[float, float, float, 
             raise RuntimeError(f"the evaluation of iteration {previous['iteration']} did not come back in 15 minutes")
         time.sleep(0.005)
         trainer.evaluations.collect(trainer.history)  # raises if the worker failed
-    return env_s + update_s, time.perf_counter() - start, step_s, previous["seconds_eval_background"]
+    round_s = time.perf_counter() - start
+    return env_s + update_s, round_s, step_s, round_s - step_s
 
 
 def everything_on(iterations: int, updates: int, threads: int, matmul: str = "auto") -> float:
