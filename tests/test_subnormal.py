@@ -1,4 +1,4 @@
-"""Subnormals flushed to zero in the update (gchgg.subnormal): the mode is scoped, and the networks come out the same."""
+"""Subnormals flushed to zero in the update (gchgg.subnormal): the mode is scoped; the networks come out the same."""
 
 from __future__ import annotations
 
