@@ -13,6 +13,7 @@ from hydra.errors import ConfigCompositionException, MissingConfigException
 
 from envs import TASKS
 from gchgg import checkpoint, evaluator, train
+from gchgg.parts import make_parts
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 ALGOS = ("her", "hgg", "ghgg", "cher", "gchgg", "gchgg_code")
@@ -231,3 +232,9 @@ def test_the_loop_switches_the_curriculum_off_when_hgg_reports_its_stop(tmp_path
     assert trainer.sampler.num_candidates == trainer.cfg.curriculum.num_candidates > 1
     trainer.iteration_step()
     assert trainer.sampler.num_candidates == 1  # plain sampling from the reported stop on
+
+
+@pytest.mark.parametrize("setting", ["flush", "keep"])
+def test_the_subnormals_setting_reaches_the_agent(setting, tmp_path):
+    cfg = config(["env=reach", "algo=her", *tiny(tmp_path), f"subnormals={setting}"])
+    assert make_parts(cfg).agent.subnormals == setting
