@@ -24,8 +24,9 @@ two forks of a pair (same checkpoint, same new seed) draw the same targets at th
 **May differ**: :data:`MAY_DIFFER`. How the products are computed (``threads``, ``matmul``,
 ``precision``, ``gradients``, ``subnormals``) may: the carried parameters are float32 whatever the
 products' dtype, and flushed subnormals leave them as they are. The metric (``algo.metric``,
-``graph.*``) and HGG's parameters (``env.stop_threshold``, ``hgg.c``, ``hgg.L``) may, because no carried state depends on them: the pool holds raw achieved-goal trajectories, HGG's
-``max_dis`` is recomputed with the fork's metric, and the stop flag is carried as it is (a stop
+``graph.*``) and HGG's parameters (``env.stop_threshold``, ``hgg.c``, ``hgg.L``) may, because no
+carried state depends on them: the pool holds raw achieved-goal trajectories, HGG's ``max_dis`` is
+recomputed with the fork's metric, and the stop flag is carried as it is (a stop
 that fired stays fired). Every other setting shapes the carried state or the loop that wrote the
 source's rows (task, networks, buffer, HER, episodes, updates, goal generator, pool size, evaluation
 episodes) and must be the source's; a fork that changes one is refused, naming it with both values.
