@@ -16,7 +16,8 @@ trainer per C and their iterations in alternating rounds, and the ratio C=50 / C
 wall-clock seconds per gchgg iteration with evaluation in-line, in the background process and
 without evaluation (``--overlap``), the background line ("everything on": each iteration beside the
 previous one's evaluation, as in a run's steady state) against the fp32 floor (the same raw steps plus
-bare fp32 updates with torch's default matmul) in alternating rounds, the median of their ratios; last,
+bare fp32 updates with torch's default matmul) in alternating rounds, the median of their ratios, and
+how a round splits into the iteration and the wait after it for the evaluation; last,
 two gchgg runs in two processes at once against one alone, each as training runs by default
 (``--side-by-side``).
 

@@ -65,7 +65,6 @@ def from_run(folder: Path, work: Path, updates: int) -> tuple[DDPGAgent, list[Te
     trainer = Trainer(cfg, work)
     trainer.load_state_dict(checkpoint.load(work / CHECKPOINT))
     agent = trainer.agent
-    torch.manual_seed(0)
     batches = [trainer.buffer.sample() for _ in range(updates)]
     described = (f"run {folder.name} ({cfg.env.name}, {cfg.algo.name}, seed {cfg.seed}) after iteration "
                  f"{trainer.iteration - 1}, {agent.num_updates:,} updates; precision={agent.precision}, "
