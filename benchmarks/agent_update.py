@@ -23,7 +23,8 @@ order: the same math, other float32 rounding, which training amplifies in both. 
 times the same agent with ``torch.compile`` on its loss (a candidate that lost) against today's.
 Last, the oneDNN update in float32 and in bfloat16, each by autograd and with ``gradients="fused"``,
 in rotating rounds beside the bare float32 update (``fused / bare fp32``: below 1 is an update faster
-than the fp32 floor's);
+than the fp32 floor's); then the training default's update with its optimisers stepped by
+:func:`gchgg.adam_step.adam_step` against the same with ``Adam.step``, and whether the two stay equal;
 ``--profile`` prints both updates' top operators.
 """
 
@@ -195,6 +196,7 @@ def main() -> None:
     onednn_update(agent, onednn, batches, args.rounds, args.updates, args.min_features)
     bf16_update(onednn, batches, args.rounds, args.updates)
     fused_onednn(onednn, bare, batches, plain, args.rounds, args.updates)
+    adam_steps(onednn, batches, args.rounds, args.updates)
     if args.compile:
         compiled_update(agent, batches, args.rounds, args.updates)
     act_one(onednn, args.rounds)
@@ -323,6 +325,38 @@ def fused_onednn(onednn: DDPGAgent, bare: BareDDPG, batches, plain, rounds: int,
               f"ms/update; fused / autograd {ratio(f'{precision} fused', f'{precision} autograd'):.3f}, "
               f"fused / bare fp32 (torch BLAS) {ratio(f'{precision} fused', 'bare'):.3f}; networks equal to "
               f"the autograd agent's after {rounds * updates} updates: {same}")
+
+
+def adam_steps(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
+    """The training default's update (``matmul``, ``precision`` and ``gradients`` auto) with its optimisers
+    stepped by :func:`gchgg.adam_step.adam_step` against a twin whose optimisers take ``Adam.step`` (a no-op
+    step hook on each makes ``adam_step`` leave the step to it), in alternating rounds; and whether the
+    twins' networks and optimiser states are still equal after them."""
+    twins = []
+    for _ in range(2):
+        agent = DDPGAgent(onednn.obs_dim, onednn.goal_dim, onednn.action_dim, precision="auto")
+        agent.load_state_dict(copy.deepcopy(onednn.state_dict()))
+        twins.append(agent)
+    direct, stepped = twins
+    for optimizer in (stepped.actor_optimizer, stepped.critic_optimizer):
+        optimizer.register_step_post_hook(lambda *args: None)
+    times = _alternate(direct, stepped, batches, rounds, updates)
+    same = all(torch.equal(x, y) for x, y in zip(_flat(direct.state_dict()), _flat(stepped.state_dict()), strict=True))
+    ratio = statistics.median(a / b for a, b in zip(*times, strict=True))
+    print(f"Adam stepped by gchgg.adam_step ({direct.precision}, gradients={direct.gradients}): "
+          f"{statistics.median(times[0]) * 1e3:.3f} ms/update against {statistics.median(times[1]) * 1e3:.3f} with "
+          f"Adam.step: {ratio:.3f}; networks and optimiser states equal after {rounds * updates} updates: {same}")
+
+
+def _flat(state) -> list[torch.Tensor]:
+    """The tensors of a nested state dict, in order."""
+    if isinstance(state, torch.Tensor):
+        return [state]
+    if isinstance(state, dict):
+        return [t for value in state.values() for t in _flat(value)]
+    if isinstance(state, (list, tuple)):
+        return [t for value in state for t in _flat(value)]
+    return []
 
 
 def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> None:

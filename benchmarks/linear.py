@@ -7,6 +7,12 @@ torch's BLAS (``F.linear`` / ``mm``, MKL on x86) and on oneDNN, and their ratio 
 faster). Both are timed in alternating rounds of one run, the ratio is the median of the rounds'.
 These figures choose :data:`gchgg.linear.MIN_BATCH` and :data:`gchgg.linear.MIN_FEATURES`.
 
+Where oneDNN computes bfloat16 natively, it then times the backward's two products in bfloat16 at
+batch 256 as :func:`gchgg.linear.onednn_linear` computes them on the transposed views (it copies each
+transposed operand contiguous first) against :func:`gchgg.linear.onednn_mm` (``torch.mm``: oneDNN's
+matmul on the strided operands), whether the two give the same values, and their ratio (< 1:
+``onednn_mm`` faster).
+
     python benchmarks/linear.py [--threads 1] [--rounds 7] [--calls 200]
 """
 
@@ -24,7 +30,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__)))) 
 import torch
 import torch.nn.functional as F
 
-from gchgg.linear import MIN_BATCH, MIN_FEATURES, _linear, onednn_available
+from gchgg.linear import MIN_BATCH, MIN_FEATURES, bf16_available, onednn_available, onednn_linear, onednn_mm
 
 SHAPES = ((31, 256), (256, 256), (256, 3))  # (in, out): the input, hidden and output layers
 BATCHES = (1, 8, 16, 32, 64, 256)
@@ -58,21 +64,51 @@ def main() -> None:
             x = torch.randn(batch, n_in, generator=generator)
             grad_y = torch.randn(batch, n_out, generator=generator)
             pairs = (
-                (partial(F.linear, x, weight, bias), partial(_linear, x, weight, bias)),
-                (partial(torch.mm, grad_y, weight), partial(_linear, grad_y, weight.t(), None)),
-                (partial(torch.mm, grad_y.t(), x), partial(_linear, grad_y.t(), x.t(), None)),
+                (partial(F.linear, x, weight, bias), partial(onednn_linear, x, weight, bias)),
+                (partial(torch.mm, grad_y, weight), partial(onednn_linear, grad_y, weight.t(), None)),
+                (partial(torch.mm, grad_y.t(), x), partial(onednn_linear, grad_y.t(), x.t(), None)),
             )
             cells = []
             for blas, onednn in pairs:
-                _time(blas, 10), _time(onednn, 10)  # warm-up
-                t_blas, t_dnn = [], []
-                for r in range(args.rounds):
-                    for fn, times in ((blas, t_blas), (onednn, t_dnn))[:: 1 if r % 2 else -1]:
-                        times.append(_time(fn, args.calls))
-                ratio = statistics.median(a / b for a, b in zip(t_blas, t_dnn, strict=True))
-                cells.append(f"{statistics.median(t_blas) * 1e6:7.1f} | "
-                             f"{statistics.median(t_dnn) * 1e6:7.1f} | {ratio:4.2f}")
+                t_blas, t_dnn, ratio = _alternate(blas, onednn, args.rounds, args.calls)
+                cells.append(f"{t_blas * 1e6:7.1f} | {t_dnn * 1e6:7.1f} | {ratio:4.2f}")
             print(f"{n_in:>4}→{n_out:<4} {batch:>5}  " + "  ".join(f"{c:>24}" for c in cells))
+    if bf16_available():
+        bf16_backward(generator, args.rounds, args.calls)
+
+
+def _alternate(first, second, rounds: int, calls: int) -> tuple[float, float, float]:
+    """Median seconds per call of ``first`` and ``second``, timed in alternating rounds, and the median
+    of the rounds' ratios first / second."""
+    _time(first, 10), _time(second, 10)  # warm-up
+    t_first, t_second = [], []
+    for r in range(rounds):
+        for fn, times in ((first, t_first), (second, t_second))[:: 1 if r % 2 else -1]:
+            times.append(_time(fn, calls))
+    ratio = statistics.median(a / b for a, b in zip(t_first, t_second, strict=True))
+    return statistics.median(t_first), statistics.median(t_second), ratio
+
+
+def bf16_backward(generator: torch.Generator, rounds: int, calls: int, batch: int = 256) -> None:
+    """The backward's bfloat16 products at ``batch`` rows: oneDNN's linear on transposed views against
+    :func:`onednn_mm`."""
+    print(f"bfloat16 backward products, batch {batch}; microseconds per call, onednn_linear on the transposed "
+          "views | onednn_mm | ratio (same values)")
+    print(f"{'in→out':>9}  {'input grad ∂y·W':>30}  {'weight grad ∂yᵀ·x':>30}")
+    for n_in, n_out in SHAPES[:2]:  # the layers oneDNN computes (the output layer is narrower than MIN_FEATURES)
+        weight = torch.randn(n_out, n_in, generator=generator).bfloat16()
+        x = torch.randn(batch, n_in, generator=generator).bfloat16()
+        grad_y = torch.randn(batch, n_out, generator=generator).bfloat16()
+        pairs = (
+            (partial(onednn_linear, grad_y, weight.t(), None), partial(onednn_mm, grad_y, weight)),
+            (partial(onednn_linear, grad_y.t(), x.t(), None), partial(onednn_mm, grad_y.t(), x)),
+        )
+        cells = []
+        for views, mm in pairs:
+            t_mm, t_views, ratio = _alternate(mm, views, rounds, calls)
+            same = torch.equal(views(), mm())
+            cells.append(f"{t_views * 1e6:7.1f} | {t_mm * 1e6:7.1f} | {ratio:4.2f} ({same})")
+        print(f"{n_in:>4}→{n_out:<4}  " + "  ".join(f"{c:>30}" for c in cells))
 
 
 if __name__ == "__main__":

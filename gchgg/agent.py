@@ -21,7 +21,8 @@ optimisers, the target-update schedule, exploration, the value function HGG need
 tensor path, differentiated by autograd or by hand with the same result bit for bit
 (:mod:`gchgg.fused_update`, the default; ``benchmarks/agent_update.py`` times both). Its ``matmul``
 argument picks who computes the wide layers' matrix products (:mod:`gchgg.linear`: oneDNN where
-measured faster); it changes speed, not the math. So does ``subnormals`` (:mod:`gchgg.subnormal`).
+measured faster); it changes speed, not the math. So does ``subnormals`` (:mod:`gchgg.subnormal`), and
+so does stepping the fused Adam optimisers through :func:`gchgg.adam_step.adam_step`.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import MLP
 
+from gchgg.adam_step import adam_step
 from gchgg.fused_update import FusedDDPGUpdate, unsupported
 from gchgg.linear import MIN_BATCH, products_in, resolve_matmul, resolve_precision, use_onednn
 from gchgg.subnormal import SUBNORMALS, flush_subnormals
@@ -591,7 +593,7 @@ class DDPGAgent:
         )
         self.precision = resolve_precision(precision, matmul)  # "auto" -> what this machine does well
         use_onednn(self.loss_module, resolve_matmul(matmul, self.precision))  # the online and the target networks
-        # fused Adam: one kernel per step instead of several per parameter
+        # fused Adam: one kernel per step instead of several per parameter (stepped by gchgg.adam_step)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
         self.observation_normalizer: RunningNormalizer = self.loss_module.actor.observation_normalizer
@@ -771,8 +773,8 @@ class DDPGAgent:
             # the actor loss sees the critic's weights detached and the critic loss does not involve
             # the online actor: one backward gives each network its own gradient
             (loss_actor + loss_value).backward()
-        self.actor_optimizer.step()
-        self.critic_optimizer.step()
+        adam_step(self.actor_optimizer)  # = optimizer.step(), bit for bit, without its per-call bookkeeping
+        adam_step(self.critic_optimizer)
         self.num_updates += 1
         if self.num_updates % self.target_update_every == 0:
             self.loss_module.update_targets(self.polyak)

@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import nn
 
-from gchgg.linear import MIN_BATCH, OneDNNLinear, onednn_linear
+from gchgg.linear import MIN_BATCH, OneDNNLinear, onednn_linear, onednn_mm
 
 if TYPE_CHECKING:  # the loss module is only read: its networks, normalisers and constants
     from gchgg.agent import HindsightDDPGLoss
@@ -128,7 +128,7 @@ class _Products:
     def input_gradient(self, i: int, x: torch.Tensor, grad_y: torch.Tensor) -> torch.Tensor:
         """``∂y·W`` of layer ``i`` (whose product took ``x``), in its product's dtype."""
         if self.onednn(i, x):
-            return onednn_linear(grad_y.to(self.dtype), self.weight(i).t(), None)
+            return onednn_mm(grad_y.to(self.dtype), self.weight(i))
         return torch.mm(grad_y.float(), self.layers[i].weight)
 
     def weight_gradients(self, i: int, x: torch.Tensor, grad_y: torch.Tensor) -> None:
@@ -136,7 +136,7 @@ class _Products:
         layer = self.layers[i]
         if self.onednn(i, x):
             grad_y = grad_y.to(self.dtype)
-            _grad(layer.weight).copy_(onednn_linear(grad_y.t(), x.t(), None))
+            _grad(layer.weight).copy_(onednn_mm(grad_y.t(), x))
             torch.sum(grad_y, 0, dtype=torch.float32, out=_grad(layer.bias))  # = grad_y.float().sum(0), one pass
         else:
             grad_y = grad_y.float()

@@ -31,8 +31,8 @@ import torch.nn.functional as F
 from torch import nn
 
 __all__ = ["MATMUL_BACKENDS", "MIN_BATCH", "MIN_FEATURES", "ONEDNN_FASTER", "PRECISIONS", "OneDNNLinear",
-           "bf16_available", "cpu_capability", "cpu_vendor", "onednn_available", "onednn_linear", "products_in",
-           "resolve_matmul", "resolve_precision", "use_onednn"]  # fmt: skip
+           "bf16_available", "cpu_capability", "cpu_vendor", "onednn_available", "onednn_linear", "onednn_mm",
+           "products_in", "resolve_matmul", "resolve_precision", "use_onednn"]  # fmt: skip
 
 MATMUL_BACKENDS = ("auto", "onednn", "default")
 """``auto``: oneDNN where this torch has it and the products are bfloat16 or the CPU is one it was
@@ -107,6 +107,20 @@ def onednn_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | No
     return torch.ops.mkldnn._linear_pointwise(x, weight, bias, "relu" if relu else "none", [], "")
 
 
+def onednn_mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a·b`` by oneDNN in the dtype of ``a`` and ``b`` (float32 accumulation), for the backward's products,
+    whose operands are transposed views (``∂y·W`` with ``W`` [out, in], ``∂yᵀ·x``).
+
+    In bfloat16 it is ``torch.mm``, which torch computes with oneDNN's matmul on the strided operands as
+    they are; :func:`onednn_linear` on the same views gives the same values (``tests/test_linear.py``) but
+    first copies each transposed operand contiguous, which makes the weight gradient ``∂yᵀ·x`` slower
+    (``python benchmarks/linear.py`` prints both where bfloat16 is native). In float32 ``torch.mm``
+    is torch's BLAS, whose sums differ, so float32 stays :func:`onednn_linear`'s."""
+    if a.dtype == torch.bfloat16:
+        return torch.mm(a, b)
+    return onednn_linear(a, b.t(), None)
+
+
 def _product(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
     """:func:`_linear` on ``x`` and ``weight`` rounded to ``dtype``, returned as float32."""
     if dtype == torch.float32:
@@ -115,8 +129,8 @@ def _product(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, d
 
 
 class _OneDNNLinearFunction(torch.autograd.Function):
-    """``y = x·Wᵀ + b`` with its three gradients, each one oneDNN product (no transposed copies),
-    in the product dtype given (the backward uses the forward's)."""
+    """``y = x·Wᵀ + b`` with its three gradients, each one oneDNN product (the backward's through
+    :func:`onednn_mm`, on the transposed views), in the product dtype given (the backward uses the forward's)."""
 
     @staticmethod
     def forward(
@@ -135,9 +149,9 @@ class _OneDNNLinearFunction(torch.autograd.Function):
         grad_y = grad_y.to(x.dtype)
         grad_x = grad_weight = grad_bias = None
         if ctx.needs_input_grad[0]:
-            grad_x = onednn_linear(grad_y, weight.t(), None).float()  # ∂y·W
+            grad_x = onednn_mm(grad_y, weight).float()  # ∂y·W
         if ctx.needs_input_grad[1]:
-            grad_weight = onednn_linear(grad_y.t(), x.t(), None).float()  # ∂yᵀ·x
+            grad_weight = onednn_mm(grad_y.t(), x).float()  # ∂yᵀ·x
         if ctx.has_bias and ctx.needs_input_grad[2]:
             grad_bias = grad_y.float().sum(0)
         return grad_x, grad_weight, grad_bias, None

@@ -204,6 +204,26 @@ def test_bfloat16_products_are_float32_results_of_rounded_inputs():
     torch.testing.assert_close(layer(x).double(), x.detach().double() @ w.double().T + b.double(), rtol=1e-5, atol=1e-5)
 
 
+@needs_onednn
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+@pytest.mark.parametrize("rows,n_in,n_out", [(256, 31, 256), (256, 256, 256), (64, 256, 256)])
+def test_onednn_mm_is_the_backward_product_oneDNN_computes_on_the_views(dtype, rows, n_in, n_out):
+    """onednn_mm(a, b) gives the values oneDNN's linear gives on the transposed views the backward
+    multiplies (∂y·W and ∂yᵀ·x), and those are a·b of the operands to the dtype's rounding."""
+    if dtype == torch.bfloat16 and not linear.bf16_available():
+        pytest.skip("no native bfloat16 oneDNN products on this CPU")
+    g = torch.Generator().manual_seed(1)
+    weight = torch.randn(n_out, n_in, generator=g).to(dtype)
+    x = torch.randn(rows, n_in, generator=g).to(dtype)
+    grad_y = torch.randn(rows, n_out, generator=g).to(dtype)
+    for a, b in ((grad_y, weight), (grad_y.t(), x)):
+        product = linear.onednn_mm(a, b)
+        assert product.dtype == dtype and product.shape == (a.shape[0], b.shape[1])
+        assert torch.equal(product, linear.onednn_linear(a, b.t(), None))
+        tolerance = dict(rtol=2**-7, atol=0.05) if dtype == torch.bfloat16 else dict(rtol=1e-5, atol=1e-4)
+        torch.testing.assert_close(product.double(), a.double() @ b.double(), **tolerance)
+
+
 def test_precision_setting_is_checked_and_auto_resolves_by_machine():
     with pytest.raises(ValueError, match="precision must be one of \\['auto', 'float32', 'bfloat16'\\], got 'fp16'"):
         linear.resolve_precision("fp16")
