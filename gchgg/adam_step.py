@@ -1,8 +1,8 @@
 """Adam's fused CPU step without ``torch.optim``'s per-call bookkeeping: the speed device beside the agent's optimisers.
 
 :class:`DDPGAgent` steps two ``torch.optim.Adam(..., fused=True)`` optimisers per update. Their
-``step()`` spends longer in Python (hooks, grad mode, profiler records, grouping the tensors by device
-and dtype) than in the fused kernel for these small networks. :func:`adam_step` calls the same kernel
+``step()`` spends a sizeable part of each call in Python for these small networks (hooks, grad mode,
+profiler records, grouping the tensors by device and dtype). :func:`adam_step` calls the same kernel
 with the same arguments that ``Adam.step`` passes it for such an optimiser (``torch._fused_adam_``,
 after adding one to each parameter's ``step``), so parameters and optimiser state come out the same bit
 for bit (``tests/test_adam_step.py``); ``python benchmarks/agent_update.py`` prints the update with it
