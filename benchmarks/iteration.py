@@ -260,7 +260,7 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
             trainer = Trainer(cfg, Path(run_dir))
             fill_pool(trainer)
             if cfg.eval.background:
-                trainer.evaluations.start_background(threads, matmul)
+                trainer.evaluations.start_background(threads, trainer.agent.matmul)
             try:
                 trainer.step()  # untimed: fills the buffer; in the background its evaluation runs beside the next
                 if cfg.eval.background:

@@ -517,8 +517,10 @@ class DDPGAgent:
         generator: draws the initial weights (``None``: torch's global generator).
         matmul: who computes the wide layers' products, one of :data:`gchgg.linear.MATMUL_BACKENDS`
             (``"auto"``: oneDNN where this torch has it and the products are bfloat16 or the CPU is one of
-            :data:`gchgg.linear.ONEDNN_FASTER`, else torch's BLAS). Speed only: it is not a hyperparameter,
-            is not saved, and a state loads under any backend.
+            :data:`gchgg.linear.ONEDNN_FASTER`, else torch's BLAS; resolved into :attr:`matmul`, the
+            backend its layers use, which a process acting with its policy passes to :func:`load_policy`
+            to act alike). Speed only: it is not a hyperparameter, is not saved, and a state loads under
+            any backend.
         precision: the dtype of those products in :meth:`update`, one of :data:`gchgg.linear.PRECISIONS`:
             ``"float32"`` (default: the math as written), ``"bfloat16"`` (oneDNN's native bfloat16
             products on CPUs with AVX-512 BF16 or AMX; ``benchmarks/agent_update.py`` times it) or
@@ -592,7 +594,8 @@ class DDPGAgent:
             actor, critic, gamma=config.gamma, action_l2=config.action_l2, clip_return=config.clip_return
         )
         self.precision = resolve_precision(precision, matmul)  # "auto" -> what this machine does well
-        use_onednn(self.loss_module, resolve_matmul(matmul, self.precision))  # the online and the target networks
+        self.matmul = resolve_matmul(matmul, self.precision)  # the backend the layers got: "onednn" or "default"
+        use_onednn(self.loss_module, self.matmul)  # the online and the target networks
         # fused Adam: one kernel per step instead of several per parameter (stepped by gchgg.adam_step)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)

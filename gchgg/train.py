@@ -178,7 +178,8 @@ class Trainer:
         bar = tqdm(total=cfg.train.iterations, initial=self.iteration, desc=f"{cfg.env.name}/{cfg.algo.name}",
                    unit="it", disable=not cfg.logging.progress)
         if cfg.eval.background:
-            self.evaluations.start_background(int(cfg.threads or torch.get_num_threads()), cfg.matmul)
+            # the agent's resolved backend, not cfg.matmul: "auto" resolves by the products' precision
+            self.evaluations.start_background(int(cfg.threads or torch.get_num_threads()), self.agent.matmul)
         self.saved_at = self.iteration
         try:
             while self.iteration < cfg.train.iterations and not self.evaluations.reached_stop(self.history, True):

@@ -204,6 +204,22 @@ def test_bfloat16_products_are_float32_results_of_rounded_inputs():
     torch.testing.assert_close(layer(x).double(), x.detach().double() @ w.double().T + b.double(), rtol=1e-5, atol=1e-5)
 
 
+@needs_bf16
+def test_the_agents_resolved_matmul_gives_an_evaluator_the_agents_layers():
+    """With bfloat16 products, matmul=auto puts the agent's layers on oneDNN on any CPU, though float32
+    alone would keep torch's BLAS on some: agent.matmul is the backend its layers got, and a policy loaded
+    with it (the background evaluator's) has the same layers and acts as the agent does, bit for bit."""
+    agent = DDPGAgent(25, 3, 3, generator=torch.Generator().manual_seed(2), precision="auto")
+    assert agent.precision == "bfloat16" and agent.matmul == "onednn"
+    actor = load_policy(agent.policy_state(), agent.matmul)
+    assert [type(m) for m in actor.modules()] == [type(m) for m in agent.actor.modules()]
+    g = torch.Generator().manual_seed(3)
+    obs, goal = torch.randn(100, 25, generator=g), torch.randn(100, 3, generator=g)
+    with torch.no_grad():
+        assert torch.equal(actor(obs, goal), agent.act(obs, goal))
+    assert DDPGAgent(25, 3, 3, matmul="default", precision="float32").matmul == "default"
+
+
 @needs_onednn
 @pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
 @pytest.mark.parametrize("rows,n_in,n_out", [(256, 31, 256), (256, 256, 256), (64, 256, 256)])
