@@ -122,7 +122,7 @@ def onednn_mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def _product(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
-    """:func:`_linear` on ``x`` and ``weight`` rounded to ``dtype``, returned as float32."""
+    """:func:`onednn_linear` on ``x`` and ``weight`` rounded to ``dtype``, returned as float32."""
     if dtype == torch.float32:
         return onednn_linear(x, weight, bias)
     return onednn_linear(x.to(dtype), weight.to(dtype), bias).float()
