@@ -399,6 +399,26 @@ def act_one(agent: DDPGAgent, rounds: int, calls: int = 500) -> None:
           f"({modules / small:.2f}x; same actions: {same}; x5,000 rollout steps an iteration: "
           f"{modules * 5000:.2f} s against {small * 5000:.2f} s)")
 
+    # eq. 22 on that one row: over both outcomes with torch.where, and act()'s one-row branch
+    with torch.no_grad():
+        action = agent._small_batch_actor(observation, goal)
+    explorations = {"where": agent.explore_actions, "one-row branch": agent._explore_one_row}
+    draws = {name: torch.Generator().manual_seed(2) for name in explorations}
+    times = {name: [] for name in explorations}
+    for _ in range(rounds):
+        for name, explore in explorations.items():
+            start = time.perf_counter()
+            for _ in range(calls):
+                explore(action.clone(), draws[name])
+            times[name].append((time.perf_counter() - start) / calls)
+    same = all(torch.equal(agent.explore_actions(action.clone(), draws["where"]),
+                           agent._explore_one_row(action.clone(), draws["one-row branch"])) for _ in range(200))
+    same = same and torch.equal(draws["where"].get_state(), draws["one-row branch"].get_state())
+    where, branch = (statistics.median(times[name]) for name in explorations)
+    print(f"exploring one row (eq. 22): where {where * 1e6:.1f} us, one-row branch {branch * 1e6:.1f} us "
+          f"({branch / where:.2f}x; same actions and draws: {same}; x5,000 rollout steps an iteration: "
+          f"{where * 5000:.2f} s against {branch * 5000:.2f} s)")
+
 
 def profile_update(agent: DDPGAgent, batches, updates: int, name: str) -> None:
     """The update's top operators by self CPU time (torch.profiler)."""

@@ -502,3 +502,46 @@ def test_small_batch_actor_acts_as_the_module_bit_for_bit_after_updates_and_load
     agent.load_state_dict(other.state_dict())
     check()
     assert not agent._small_batch_actor.takes(torch.randn(MIN_BATCH, 25), torch.randn(MIN_BATCH, 3))
+
+
+@pytest.mark.parametrize("random_eps", [0.3, 0.7, 0.0, 1.0])
+def test_exploring_one_row_is_eq_22_with_the_same_draws(random_eps):
+    """act(explore=True) on one row (the per-episode loop's branch) gives what eq. 22 gives, draw for draw,
+    including where the coin equals random_eps rounded to float32 (0.7 rounds down)."""
+    from gchgg.agent import DDPGAgent, DDPGConfig
+
+    agent = DDPGAgent(25, 3, 4, DDPGConfig(hidden=(32, 32)), generator=torch.Generator().manual_seed(0))
+    agent.random_eps = random_eps  # a setting changed after construction is followed
+    g, draws = torch.Generator().manual_seed(1), torch.Generator().manual_seed(2)
+    eps32 = torch.tensor(random_eps, dtype=torch.float32)
+    for _ in range(300):
+        observation, goal = torch.randn(1, 25, generator=g), torch.randn(1, 3, generator=g)
+        state = draws.get_state()
+        action = agent.act(observation, goal, explore=True, generator=draws)
+        reference = torch.Generator()
+        reference.set_state(state)  # eq. 22 written out, from the same state: coin, uniform action, noise
+        coin = torch.rand(1, generator=reference)
+        uniform = torch.rand(1, 4, generator=reference) * 2 - 1
+        noisy = (agent.actor(observation, goal) + torch.randn(1, 4, generator=reference) * agent.noise_std).clamp(-1, 1)
+        assert torch.equal(action, uniform if bool(coin < eps32) else noisy)
+        assert torch.equal(draws.get_state(), reference.get_state())  # the same amount drawn
+    # the coin at the boundary: a coin equal to float32(0.7) is not below it
+    agent.random_eps = 0.7
+    agent._explore_one_row(torch.zeros(1, 4), torch.Generator().manual_seed(0))  # rounds random_eps
+    assert agent._random_eps32 == (0.7, float(torch.tensor(0.7, dtype=torch.float32))) and agent._random_eps32[1] < 0.7
+
+
+def test_small_batch_actor_with_unlike_normalisers_keeps_their_own_standardisation():
+    """Normalisers that clip differently are not joined; still the module's actions."""
+    from gchgg.agent import DDPGAgent, DDPGConfig
+
+    agent = DDPGAgent(25, 3, 3, DDPGConfig(hidden=(32, 32)), generator=torch.Generator().manual_seed(0))
+    g = torch.Generator().manual_seed(1)
+    agent.update_normalizer(torch.randn(100, 25, generator=g) * 4, torch.randn(100, 3, generator=g))
+    observation, goal = torch.randn(5, 25, generator=g) * 30, torch.randn(5, 3, generator=g) * 30
+    with torch.no_grad():
+        assert agent._small_batch_actor._statistics() is not None
+        assert torch.equal(agent.act(observation, goal), agent.actor(observation, goal))
+        agent.goal_normalizer.clip = 2.0
+        assert agent._small_batch_actor._statistics() is None  # a changed clip is seen
+        assert torch.equal(agent.act(observation, goal), agent.actor(observation, goal))
