@@ -914,8 +914,8 @@ class SmallBatchActor:
     def _statistics(self) -> tuple[torch.Tensor, torch.Tensor, float] | None:
         """The two normalisers' ``loc`` and ``scale`` joined, and their clip, joined again after either changed
         (``update`` and ``load_state_dict`` change them in place, which bumps their versions, or a clip was
-        set); ``None`` where
-        the joined form would not compute the same values (clips that differ, statistics not float32)."""
+        set); ``None`` where the joined form would not compute the same values (clips that differ,
+        statistics not float32)."""
         o, g = self.observation_normalizer, self.goal_normalizer
         parts = (o.loc, o.scale, g.loc, g.scale)
         stamp = (*((t.data_ptr(), t._version) for t in parts), o.clip, g.clip)
