@@ -4,7 +4,9 @@ An iteration is 50 episodes of 100 steps (collected in ``train.chunks`` chunks),
 into the buffer, a normaliser update per chunk and 1,000 DDPG updates of 256 (plus goal generation
 for ghgg / gchgg); evaluation and checkpointing are timed apart (not included). Each algorithm first
 runs one untimed iteration (filling the buffer; the goal pool is filled with 1,000 synthetic
-trajectories beforehand), then ``--iterations`` timed ones; the median is printed. The floor is the
+trajectories beforehand), then ``--iterations`` timed ones, the algorithms in alternating rounds so that a
+change of the machine's load hits all; the median is printed, and gchgg / her (cher / her) as the median of
+the ratios within a round. The floor is the
 same work done bare, measured in the same run: 5,000 raw dm_control ``Environment.step`` calls on one
 env and 1,000 plain-torch DDPG updates (``benchmarks/agent_update.py``'s ``BareDDPG``).
 
@@ -34,6 +36,7 @@ float32 with autograd.
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import os
 import signal
@@ -205,19 +208,31 @@ def _medians(rows: list[dict]) -> tuple[float, dict[str, float]]:
     return statistics.median(sum(r[f"seconds_{p}"] for p in PHASES) for r in rows), phases
 
 
-def iteration_seconds(
-    algo: str, iterations: int, updates: int, threads: int, chunks: int = 50, checkpoint_too: bool = False,
-    matmul: str = "auto",
-) -> tuple[float, dict[str, float]]:
-    """Median seconds per timed iteration of ``algo`` on push_new with ``chunks`` chunks, and the median per phase
-    (with ``checkpoint_too``, also :func:`checkpoint_cost` and its share of the iteration)."""
+def algo_seconds(
+    algos: list[str], iterations: int, updates: int, threads: int, floor: float, matmul: str = "auto",
+) -> tuple[dict[str, tuple[float, dict[str, float]]], dict[str, list[float]]]:
+    """Median seconds per timed iteration (and per phase) of each of ``algos`` on push_new at C = 50, one
+    trainer each, their iterations timed in alternating rounds so that a change of the machine's load hits
+    all (as :func:`chunk_seconds`); and each algorithm's seconds per round, to compare them within a round.
+    Prints each algorithm's line (against ``floor`` seconds), then :func:`checkpoint_cost` on the last
+    algorithm's trainer (the others freed first, so that its memory figures are those of one trainer)."""
+    rows: dict[str, list[dict]] = {algo: [] for algo in algos}
     with tempfile.TemporaryDirectory() as run_dir:
-        trainer = _ready_trainer(algo, updates, threads, chunks, matmul, run_dir)
-        total, phases = _medians([trainer.iteration_step() for _ in range(iterations)])
-        if checkpoint_too:
-            seconds = checkpoint_cost(trainer, Path(run_dir))
-            print(f"  checkpoint / iteration = {seconds / total:.3f} (target <= 0.02)")
-    return total, phases
+        trainers = {algo: _ready_trainer(algo, updates, threads, 50, matmul, f"{run_dir}/{algo}") for algo in algos}
+        for _ in range(iterations):
+            for algo, trainer in trainers.items():
+                rows[algo].append(trainer.iteration_step())
+        medians = {algo: _medians(r) for algo, r in rows.items()}
+        for algo, (total, phases) in medians.items():
+            detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
+            print(f"{algo:6s} {total:6.2f} s/iteration  {total / floor:.2f}x floor  ({detail})", flush=True)
+        last = trainers.pop(algos[-1])
+        trainers.clear()
+        gc.collect()
+        seconds = checkpoint_cost(last, Path(run_dir) / algos[-1])
+        print(f"  checkpoint / iteration = {seconds / medians[algos[-1]][0]:.3f} (target <= 0.02)")
+    rounds = {algo: [sum(row[f"seconds_{p}"] for p in PHASES) for row in r] for algo, r in rows.items()}
+    return medians, rounds
 
 
 def chunk_seconds(
@@ -388,18 +403,20 @@ def main() -> None:
     print(f"floor: {floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare DDPG updates {update_s:.2f} s)")
     print(f"fp32 floor: {fp32_floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare fp32 DDPG updates with "
           f"torch's default matmul {fp32_update_s:.2f} s)")
-    seconds = {}
-    for algo in args.algos:
-        seconds[algo], phases = iteration_seconds(algo, args.iterations, args.updates, args.threads,
-                                                  checkpoint_too=algo == args.algos[-1], matmul=args.matmul)
-        detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
-        print(f"{algo:6s} {seconds[algo]:6.2f} s/iteration  {seconds[algo] / floor:.2f}x floor  ({detail})", flush=True)
+    by_algo, algo_rounds = algo_seconds(args.algos, args.iterations, args.updates, args.threads, floor, args.matmul)
+    seconds = {algo: total for algo, (total, _) in by_algo.items()}
     if "her" in seconds:
         print(f"her / floor = {seconds['her'] / floor:.2f} (target <= 1.3)")
+
+    def within_rounds(a: str, b: str) -> str:  # the median of a / b within each round, and the rounds' ratios
+        ratios = [x / y for x, y in zip(algo_rounds[a], algo_rounds[b], strict=True)]
+        return (f"{statistics.median(ratios):.2f}, the median over {len(ratios)} alternating rounds of the ratio "
+                f"within a round ({', '.join(f'{r:.2f}' for r in ratios)})")
+
     if {"her", "gchgg"} <= set(seconds):
-        print(f"gchgg / her = {seconds['gchgg'] / seconds['her']:.2f} (target <= 1.25; the paper: 179 s / 52 s = 3.4)")
+        print(f"gchgg / her = {within_rounds('gchgg', 'her')} (target <= 1.25; the paper: 179 s / 52 s = 3.4)")
     if {"her", "cher"} <= set(seconds):
-        print(f"cher / her = {seconds['cher'] / seconds['her']:.2f} (target <= 1.3)")
+        print(f"cher / her = {within_rounds('cher', 'her')} (target <= 1.3)")
     by_chunks, rounds = chunk_seconds(args.chunks, args.iterations, args.updates, args.threads, args.matmul)
     for chunks, (total, phases) in by_chunks.items():
         detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
