@@ -216,12 +216,9 @@ def algo_seconds(
     all (as :func:`chunk_seconds`); and each algorithm's seconds per round, to compare them within a round.
     Prints each algorithm's line (against ``floor`` seconds), then :func:`checkpoint_cost` on the last
     algorithm's trainer (the others freed first, so that its memory figures are those of one trainer)."""
-    rows: dict[str, list[dict]] = {algo: [] for algo in algos}
     with tempfile.TemporaryDirectory() as run_dir:
         trainers = {algo: _ready_trainer(algo, updates, threads, 50, matmul, f"{run_dir}/{algo}") for algo in algos}
-        for _ in range(iterations):
-            for algo, trainer in trainers.items():
-                rows[algo].append(trainer.iteration_step())
+        rows = _alternating_rounds(trainers, iterations)
         medians = {algo: _medians(r) for algo, r in rows.items()}
         for algo, (total, phases) in medians.items():
             detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())
@@ -231,8 +228,7 @@ def algo_seconds(
         gc.collect()
         seconds = checkpoint_cost(last, Path(run_dir) / algos[-1])
         print(f"  checkpoint / iteration = {seconds / medians[algos[-1]][0]:.3f} (target <= 0.02)")
-    rounds = {algo: [sum(row[f"seconds_{p}"] for p in PHASES) for row in r] for algo, r in rows.items()}
-    return medians, rounds
+    return medians, _round_seconds(rows)
 
 
 def chunk_seconds(
@@ -241,14 +237,24 @@ def chunk_seconds(
     """Median seconds per gchgg iteration (and per phase) for each chunk count C, one trainer per C,
     their iterations timed in alternating rounds so that a change of the machine's load hits all;
     and each C's seconds per round, to compare C's within a round."""
-    rows: dict[int, list[dict]] = {c: [] for c in chunk_counts}
     with tempfile.TemporaryDirectory() as run_dir:
         trainers = {c: _ready_trainer("gchgg", updates, threads, c, matmul, f"{run_dir}/{c}") for c in chunk_counts}
-        for _ in range(iterations):
-            for c, trainer in trainers.items():
-                rows[c].append(trainer.iteration_step())
-    rounds = {c: [sum(row[f"seconds_{p}"] for p in PHASES) for row in r] for c, r in rows.items()}
-    return {c: _medians(r) for c, r in rows.items()}, rounds
+        rows = _alternating_rounds(trainers, iterations)
+    return {c: _medians(r) for c, r in rows.items()}, _round_seconds(rows)
+
+
+def _alternating_rounds(trainers: dict, iterations: int) -> dict:
+    """Each trainer's metrics rows of ``iterations`` iterations, run in rounds of one iteration per trainer."""
+    rows: dict = {key: [] for key in trainers}
+    for _ in range(iterations):
+        for key, trainer in trainers.items():
+            rows[key].append(trainer.iteration_step())
+    return rows
+
+
+def _round_seconds(rows: dict) -> dict:
+    """Each key's seconds per round (the phases' sum) from :func:`_alternating_rounds`' rows."""
+    return {key: [sum(row[f"seconds_{p}"] for p in PHASES) for row in r] for key, r in rows.items()}
 
 
 def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str = "auto") -> tuple[float, float]:

@@ -158,7 +158,11 @@ class KukaEnv(EnvBase):
 
     def _truncated(self) -> torch.Tensor:
         """``[N, 1]`` bool: the episode has reached the task's length T."""
-        return torch.from_numpy(self._steps >= self.geometry.episode_length).unsqueeze(-1)
+        return torch.from_numpy(self._at_length()).unsqueeze(-1)
+
+    def _at_length(self, out: np.ndarray | None = None) -> np.ndarray:
+        """``[N]`` bool (into ``out`` if given): the episode has reached the task's length T."""
+        return np.greater_equal(self._steps, self.geometry.episode_length, out=out)
 
     # -- the speed device beside the TorchRL loop ---------------------------------------------------
 
@@ -189,14 +193,13 @@ class KukaEnv(EnvBase):
         goal[1:] = torch.from_numpy(self._goal)  # set at reset, fixed while stepping
         # each step's results copied by numpy into the tensors' memory: a fraction of a tensor copy's cost
         observation_rows, achieved_rows, truncated_rows = observation.numpy(), achieved.numpy(), truncated.numpy()
-        episode_length = self.geometry.episode_length
         for t in range(steps):
             action = act(observation[t], goal[t])
             self._advance(action)
             actions.append(action)
             observation_rows[t + 1] = self._observation
             achieved_rows[t + 1] = self._achieved
-            np.greater_equal(self._steps, episode_length, out=truncated_rows[t + 1, :, 0])  # _truncated()
+            self._at_length(out=truncated_rows[t + 1, :, 0])
         rewards = reward(achieved[1:], goal[1:], self.threshold).unsqueeze(-1)
 
         def batch_first(x: torch.Tensor) -> torch.Tensor:  # [steps, N, ...] -> [N, steps, ...]
