@@ -19,7 +19,9 @@ wall-clock seconds per gchgg iteration with evaluation in-line, in the backgroun
 without evaluation (``--overlap``), the background line ("everything on": each iteration beside the
 previous one's evaluation, as in a run's steady state) against the fp32 floor (the same raw steps plus
 bare fp32 updates with torch's default matmul) in alternating rounds, the median of their ratios, and
-how a round splits into the iteration and the wait after it for the evaluation; last,
+how a round splits into the iteration and the wait after it for the evaluation; in the same rounds the
+fp32 floor's work beside one evaluation in a second process (what such an evaluation costs bare work on
+this machine, whose two cores may share one core's resources) and everything on against it; last,
 two gchgg runs in two processes at once against one alone, each as training runs by default
 (``--side-by-side``).
 
@@ -58,6 +60,7 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
+from gchgg.evaluator import BackgroundEvaluator  # noqa: E402
 from gchgg.linear import MATMUL_BACKENDS, resolve_matmul, resolve_precision, use_onednn  # noqa: E402
 from gchgg.rollout import collect  # noqa: E402
 from gchgg.train import CONF_DIR, Trainer  # noqa: E402
@@ -266,10 +269,11 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
 
     The background iterations are timed as a run's steady state, in rounds against the fp32 floor
     (this machine drifts between minutes): each round times the floor (raw steps plus bare fp32
-    updates) with the evaluation worker paused (SIGSTOP), then one iteration beside the previous
-    iteration's evaluation, until both are done (an evaluation slower than an iteration counts
-    whole). The ratio is the median of the rounds' ratios; the last evaluation, which a run waits for
-    once at its end, is not timed."""
+    updates) with the evaluation worker paused (SIGSTOP), then the floor again beside one evaluation of
+    the trainer's policy in a second worker (:func:`_floor_beside_evaluation`), then one iteration beside
+    the previous iteration's evaluation, until both are done (an evaluation slower than an iteration
+    counts whole). The ratios are the medians of the rounds' ratios; the last evaluation, which a run
+    waits for once at its end, is not timed."""
     wall = {}
     for mode, extra in (("without evaluation", ["eval.every=1000"]), ("in-line evaluation", []),
                         ("background evaluation", ["eval.background=true"])):  # fmt: skip
@@ -280,12 +284,15 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
         with tempfile.TemporaryDirectory() as run_dir:
             trainer = Trainer(cfg, Path(run_dir))
             fill_pool(trainer)
+            probe = None
             if cfg.eval.background:
                 trainer.evaluations.start_background(threads, trainer.agent.matmul)
+                evaluations = trainer.evaluations  # a second worker of the same kind, for the floor beside it
+                probe = BackgroundEvaluator(evaluations.build_env, evaluations.steps, threads, trainer.agent.matmul)
             try:
                 trainer.step()  # untimed: fills the buffer; in the background its evaluation runs beside the next
                 if cfg.eval.background:
-                    rounds = [_steady_round(trainer, updates) for _ in range(iterations)]
+                    rounds = [_steady_round(trainer, updates, probe) for _ in range(iterations)]
                 else:
                     start = time.perf_counter()
                     for _ in range(iterations):  # as training runs each iteration (checkpoint.every=1)
@@ -293,9 +300,13 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
                     wall[mode] = (time.perf_counter() - start) / iterations
             finally:
                 trainer.evaluations.close()
+                if probe is not None:
+                    probe.close()
         if cfg.eval.background:
-            floor, wall[mode], step_s, wait_s = (statistics.median(column) for column in zip(*rounds, strict=True))
-            ratios = [seconds / round_floor for round_floor, seconds, _, _ in rounds]
+            floor, beside, wall[mode], step_s, wait_s = (statistics.median(c) for c in zip(*rounds, strict=True))
+            ratios = [seconds / round_floor for round_floor, _, seconds, _, _ in rounds]
+            beside_ratios = [round_beside / round_floor for round_floor, round_beside, _, _, _ in rounds]
+            against_beside = [seconds / round_beside for _, round_beside, seconds, _, _ in rounds]
             print(f"gchgg {mode:22s} {wall[mode]:6.2f} s/iteration (wall clock, median of {iterations} rounds, each "
                   f"beside the previous iteration's evaluation, with its checkpoint; the fp32 floor in those "
                   f"rounds: {floor:.2f} s)", flush=True)
@@ -310,19 +321,26 @@ def evaluation_overlap(iterations: int, updates: int, threads: int, matmul: str 
     print(f"everything on (background evaluation, checkpoints): {wall['background evaluation']:.2f} s/iteration "
           "(target <= 18 s on a 2-core machine)")
     ratio = statistics.median(ratios)
+    listed = lambda values: ", ".join(f"{r:.2f}" for r in values)  # noqa: E731
     print(f"everything on / fp32 floor = {ratio:.2f} (target <= 1.0; the median of {iterations} rounds' ratios: "
-          f"{', '.join(f'{r:.2f}' for r in ratios)})")
+          f"{listed(ratios)})")
+    print(f"where the rest goes: the fp32 floor beside one evaluation in a second process {beside:.2f} s, "
+          f"{statistics.median(beside_ratios):.2f}x the floor alone (the median of the rounds' ratios: "
+          f"{listed(beside_ratios)})")
+    print(f"everything on / fp32 floor beside one evaluation = {statistics.median(against_beside):.2f} "
+          f"(the median of the rounds' ratios: {listed(against_beside)})")
     return wall["background evaluation"], ratio
 
 
-def _steady_round(trainer: Trainer, updates: int) -> tuple[float, float, float, float]:
-    """One round of :func:`evaluation_overlap`'s background timing: seconds of ``(fp32 floor, round, the
-    iteration in it, the wait after the iteration for the evaluation beside it)``; the round lasts until
-    both are done."""
+def _steady_round(trainer: Trainer, updates: int, probe: BackgroundEvaluator) -> tuple[float, ...]:
+    """One round of :func:`evaluation_overlap`'s background timing: seconds of ``(fp32 floor, fp32 floor
+    beside one evaluation, round, the iteration in it, the wait after the iteration for the evaluation
+    beside it)``; the round lasts until both are done."""
     worker = trainer.evaluations.background.pid
-    os.kill(worker, signal.SIGSTOP)  # the previous iteration's evaluation waits while the floor runs alone
+    os.kill(worker, signal.SIGSTOP)  # the previous iteration's evaluation waits while the floors run
     try:
         env_s, update_s = floor_seconds(50, 100, updates, 256, "default")
+        beside = _floor_beside_evaluation(probe, trainer.agent.policy_state(), updates)
     finally:
         os.kill(worker, signal.SIGCONT)
     previous = trainer.history[-1]
@@ -335,7 +353,17 @@ def _steady_round(trainer: Trainer, updates: int) -> tuple[float, float, float, 
         time.sleep(0.005)
         trainer.evaluations.collect(trainer.history)  # raises if the worker failed
     round_s = time.perf_counter() - start
-    return env_s + update_s, round_s, step_s, round_s - step_s
+    return env_s + update_s, beside, round_s, step_s, round_s - step_s
+
+
+def _floor_beside_evaluation(probe: BackgroundEvaluator, policy: dict, updates: int) -> float:
+    """Seconds of the fp32 floor's work (:func:`floor_seconds`) while ``probe`` evaluates ``policy`` (100
+    episodes) beside it, the evaluation handed over as the floor starts, as an iteration starts beside the
+    previous iteration's; waits for the evaluation to end before it returns."""
+    probe.submit(0, policy, None)
+    env_s, update_s = floor_seconds(50, 100, updates, 256, "default")
+    probe.results(wait=True)
+    return env_s + update_s
 
 
 def everything_on(iterations: int, updates: int, threads: int, matmul: str = "auto") -> float:
