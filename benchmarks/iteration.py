@@ -357,9 +357,9 @@ def _steady_round(trainer: Trainer, updates: int, probe: BackgroundEvaluator) ->
 
 
 def _floor_beside_evaluation(probe: BackgroundEvaluator, policy: dict, updates: int) -> float:
-    """Seconds of the fp32 floor's work (:func:`floor_seconds`) while ``probe`` evaluates ``policy`` (100
-    episodes) beside it, the evaluation handed over as the floor starts, as an iteration starts beside the
-    previous iteration's; waits for the evaluation to end before it returns."""
+    """Seconds of the fp32 floor's work (:func:`floor_seconds`) while ``probe`` evaluates ``policy`` beside it
+    (``eval.episodes`` episodes, 100 by default), the evaluation handed over as the floor starts, as an iteration
+    starts beside the previous iteration's; waits for the evaluation to end before it returns."""
     probe.submit(0, policy, None)
     env_s, update_s = floor_seconds(50, 100, updates, 256, "default")
     probe.results(wait=True)
