@@ -47,10 +47,10 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
   more than 0.5 + m of the pairs), contradicted if it lies outside that band and excludes 0.5, else
   undecided (a few runs give a wide CI: "alike" needs many).
 
-``looks`` (``faster``, ``alike``): the runs per group at each planned look of a sequential design
-(runs added until the interval decides, e.g. ``[3, 4, 5, 6, 7, 8, 9, 10]``): the interval is then
-drawn at Pocock's level for all those looks (:func:`gchgg.stats.sequential_alpha`), not at 95 %,
-since reading it after every added run and stopping once it decides would otherwise decide too
+``looks`` (``reaches_by``, ``final``, ``faster``, ``alike``): the runs per group at each planned look of a
+sequential design (runs added until the interval decides, e.g. ``[3, 4, 5, 6, 7, 8, 9, 10]``): the
+interval is then drawn at Pocock's level for all those looks (:func:`gchgg.stats.sequential_alpha`), not
+at 95 %, since reading it after every added run and stopping once it decides would otherwise decide too
 often; the row is undecided while the groups' run counts differ or are not one of the looks.
 
 An entry with a list of ``groups`` (or of ``than``) is one claim per member; ``{name}`` and
@@ -79,6 +79,9 @@ KINDS = {"reaches_by": ("by",), "fails": ("within",), "final": ("level", "spread
          "faster_paired": ("than", "pairs"), "alike": ("than", "margin")}
 """Each kind of claim and the fields it needs besides id, task, groups, claim and paper."""
 
+LOOKS_KINDS = ("reaches_by", "final", "faster", "alike")
+"""The kinds whose interval may be drawn at Pocock's level for a sequential design's ``looks``."""
+
 VERDICTS = ("holds", "contradicted", "undecided")
 SCORES = ("first", "auc")
 """What a comparison reads: first ≥ 0.9 (fewer iterations is better) or the AUC (higher is better)."""
@@ -103,7 +106,7 @@ class Claim:
     pairs: str = ""  # faster_paired: the task's subfolder of paired forks
     score: str = "first"  # faster, faster_paired, alike: "first" (first >= 0.9) or "auc"
     runs: tuple[tuple[str, str], ...] = ()  # (group, glob under results) instead of <task>/<group>-seed<N>.csv
-    looks: tuple[int, ...] = ()  # faster, alike: runs per group at each planned look of a sequential design
+    looks: tuple[int, ...] = ()  # LOOKS_KINDS: runs per group at each planned look of a sequential design
 
 
 @dataclass
@@ -152,11 +155,11 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
             raise ValueError(f"{where}: score {score!r} with kind {kind}; allowed: {', '.join(SCORES)} with faster, "
                              "faster_paired and alike, first with the other kinds")
         looks = entry.get("looks") or []
-        if looks and (kind not in ("faster", "alike") or not isinstance(looks, list)
+        if looks and (kind not in LOOKS_KINDS or not isinstance(looks, list)
                       or any(not isinstance(n, int) or n < 1 for n in looks)
                       or any(b <= a for a, b in itertools.pairwise(looks))):
-            raise ValueError(f"{where}: looks {looks!r} with kind {kind}; allowed with faster and alike: an "
-                             "increasing list of run counts per group, each 1 or more")
+            raise ValueError(f"{where}: looks {looks!r} with kind {kind}; allowed with {', '.join(LOOKS_KINDS)}: "
+                             "an increasing list of run counts per group, each 1 or more")
         groups, others = _as_list(entry["groups"]), _as_list(entry.get("than", ""))
         runs = entry.get("runs") or {}
         if not isinstance(runs, dict) or any(not isinstance(v, str) for v in runs.values()):
@@ -263,14 +266,21 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     mine = scores.get(claim.group)
     if mine is None:
         return Row(claim, "—; 0 runs", "undecided", few, True)
-    first = mine.first_interval()
-    first_text = (f"first ≥ {plot.THRESHOLD} IQM {first.format(1)}; {mine.runs} run{'s' * (mine.runs != 1)}, "
-                  f"{int(mine.censored.sum())} censored")
+    alpha, level = stats.ALPHA, ""
+    if claim.looks:
+        alpha = _pocock_alpha(claim.looks)
+        level = f" ({100 * (1 - alpha):.1f} % CI, Pocock's for looks at {plot.format_looks(claim.looks)})"
+    first = stats.iqm_interval(mine.first, alpha=alpha)
+    first_text = (f"first ≥ {plot.THRESHOLD} IQM {first.format(1)}{level if claim.kind == 'reaches_by' else ''}; "
+                  f"{mine.runs} run{'s' * (mine.runs != 1)}, {int(mine.censored.sum())} censored")
+    off_look = f"{mine.runs} runs: not a look of the design ({plot.format_looks(claim.looks)})"
     if claim.kind == "reaches_by":
         bound = claim.by * (1 + slack)
         target = f"{_number(bound)} ({_number(claim.by)} + {_number(100 * slack)} %)"
         if few:
             return Row(claim, first_text, "undecided", few, True)
+        if claim.looks and mine.runs not in claim.looks:
+            return Row(claim, first_text, "undecided", off_look)
         if first.high <= bound:
             return Row(claim, first_text, "holds", f"CI ≤ {target}")
         if first.low > bound:
@@ -290,14 +300,16 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
                                                    f"CI reaches {_number(claim.within)}")
     if claim.kind == "final":
         values, stopped, last = finals[claim.group]
-        end = stats.iqm_interval(values)
-        text = (f"success at {last} IQM {end.format(2)}; {mine.runs} run{'s' * (mine.runs != 1)}, "
+        end = stats.iqm_interval(values, alpha=alpha)
+        text = (f"success at {last} IQM {end.format(2)}{level}; {mine.runs} run{'s' * (mine.runs != 1)}, "
                 f"{stopped} stopped early")
         low, high = claim.level - claim.spread, claim.level + claim.spread
         band = f"[{low:.2f}, {high:.2f}]"
         eps = 1e-9  # 0.99 + 0.01 is 1.0 up to float rounding
         if few:
             return Row(claim, text, "undecided", few, True)
+        if claim.looks and mine.runs not in claim.looks:
+            return Row(claim, text, "undecided", off_look)
         if end.low >= low - eps and end.high <= high + eps:
             return Row(claim, text, "holds", f"CI inside {band}")
         if end.low > high + eps:
@@ -312,10 +324,6 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     other = scores.get(claim.than)
     if other is None:
         return Row(claim, f"{first_text}; {claim.than}: 0 runs", "undecided", few, True)
-    alpha, level = stats.ALPHA, ""
-    if claim.looks:
-        alpha = _pocock_alpha(claim.looks)
-        level = f" ({100 * (1 - alpha):.1f} % CI, Pocock's for looks at {plot.format_looks(claim.looks)})"
     if claim.score == "auc":
         poi = stats.poi_interval(mine.auc, other.auc, alpha=alpha)
         on = f"AUC over iterations 0–{mine.auc_range - 1}"

@@ -225,6 +225,16 @@ def test_a_claim_with_runs_missing_a_group_or_a_score_its_kind_cannot_read_is_an
         claims.load_claims(path)
 
 
+def assert_wider(row, than):
+    """The interval in ``row``'s measured figure contains ``than``'s and differs from it."""
+    def interval(r):
+        low, high = r.measured.split(" [")[1].split("]")[0].split(", ")
+        return float(low), float(high)
+
+    (low, high), (wide_low, wide_high) = interval(than), interval(row)
+    assert wide_low <= low and wide_high >= high and (wide_low, wide_high) != (low, high)
+
+
 def test_looks_give_a_faster_claim_pococks_interval_and_runs_off_the_looks_leave_it_undecided(tmp_path):
     from gchgg import stats
 
@@ -242,17 +252,39 @@ claims:
     rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
     level = 100 * (1 - stats.sequential_alpha([6, 7, 8, 9, 10]))
     assert f" ({level:.1f} % CI, Pocock's for looks at 6-10 runs); 8 vs 8 runs" in rows["looked"].measured
-
-    def interval(row):
-        low, high = row.measured.split(" [")[1].split("]")[0].split(", ")
-        return float(low), float(high)
-
-    (low, high), (low_looked, high_looked) = interval(rows["plain"]), interval(rows["looked"])
-    assert low_looked <= low and high_looked >= high and (low_looked, high_looked) != (low, high)
+    assert_wider(rows["looked"], than=rows["plain"])
     assert rows["unplanned"].verdict == "undecided"
     assert rows["unplanned"].reason == "8 and 8 runs: not a look of the design (4, 6 runs each)"
     for looks, kind in [("[4, 3]", "faster"), ("[3]", "fails")]:
         (tmp_path / "bad.yaml").write_text(f"claims:\n  - {{id: x, task: t, kind: {kind}, groups: [a], than: b, "
                                            f"within: 5, looks: {looks}, claim: c, paper: p}}\n")
-        with pytest.raises(ValueError, match=f"claim x: looks .* with kind {kind}; allowed with faster and alike"):
+        with pytest.raises(ValueError, match=f"claim x: looks .* with kind {kind}; allowed with reaches_by, "
+                                             "final, faster, alike"):
             claims.load_claims(tmp_path / "bad.yaml")
+
+
+@pytest.mark.parametrize("kind, fields", [("reaches_by", "by: 4"), ("final", "level: 0.99, spread: 0.01")])
+def test_looks_give_a_one_group_claim_pococks_interval_and_runs_off_the_looks_leave_it_undecided(
+        tmp_path, kind, fields):
+    from gchgg import stats
+
+    toy = tmp_path / "toy"
+    for seed, (first, end) in enumerate(zip([2, 3, 2, 4, 1, 3, 2, 5], [0.9, 1.0, 0.95, 0.9, 1.0, 0.92, 0.97, 0.9],
+                                            strict=True)):
+        rows = reaching(first, length=8)
+        rows[-1] = end
+        write_csv(toy / f"a-seed{seed}.csv", rows)
+    (tmp_path / "claims.yaml").write_text(f"""
+claims:
+  - {{id: plain, task: toy, kind: {kind}, {fields}, groups: [a], claim: "c", paper: "x"}}
+  - {{id: looked, task: toy, kind: {kind}, {fields}, groups: [a], looks: [6, 7, 8, 9, 10], claim: "c", paper: "x"}}
+  - {{id: unplanned, task: toy, kind: {kind}, {fields}, groups: [a], looks: [4, 6], claim: "c", paper: "x"}}
+""")
+    loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
+    rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
+    level = 100 * (1 - stats.sequential_alpha([6, 7, 8, 9, 10]))
+    assert f"] ({level:.1f} % CI, Pocock's for looks at 6-10 runs); 8 runs, " in rows["looked"].measured
+    assert "Pocock" not in rows["plain"].measured
+    assert_wider(rows["looked"], than=rows["plain"])
+    assert rows["unplanned"].verdict == "undecided"
+    assert rows["unplanned"].reason == "8 runs: not a look of the design (4, 6 runs)"
