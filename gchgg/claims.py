@@ -252,6 +252,16 @@ def _number(value: float) -> str:
     return f"{value:g}"
 
 
+def _off_look(claim: Claim, *runs: int) -> str:
+    """Why the claim is undecided for a sequential design whose looks these run counts (one per group it
+    reads) miss: they differ, or are not one of ``claim.looks`` ("" without looks, or at a look)."""
+    if not claim.looks or (len(set(runs)) == 1 and runs[0] in claim.looks):
+        return ""
+    each = " each" if len(runs) > 1 else ""
+    return (f"{' and '.join(map(str, runs))} runs: not a look of the design "
+            f"({plot.format_looks(claim.looks)}{each})")
+
+
 @functools.cache
 def _pocock_alpha(looks: tuple[int, ...]) -> float:
     """:func:`gchgg.stats.sequential_alpha` of the looks, simulated once per design (claims share designs)."""
@@ -271,16 +281,15 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
         alpha = _pocock_alpha(claim.looks)
         level = f" ({100 * (1 - alpha):.1f} % CI, Pocock's for looks at {plot.format_looks(claim.looks)})"
     first = stats.iqm_interval(mine.first, alpha=alpha)
-    first_text = (f"first ≥ {plot.THRESHOLD} IQM {first.format(1)}{level if claim.kind == 'reaches_by' else ''}; "
+    first_text = (f"first ≥ {plot.THRESHOLD} IQM {first.format(1)}{level}; "
                   f"{mine.runs} run{'s' * (mine.runs != 1)}, {int(mine.censored.sum())} censored")
-    off_look = f"{mine.runs} runs: not a look of the design ({plot.format_looks(claim.looks)})"
     if claim.kind == "reaches_by":
         bound = claim.by * (1 + slack)
         target = f"{_number(bound)} ({_number(claim.by)} + {_number(100 * slack)} %)"
         if few:
             return Row(claim, first_text, "undecided", few, True)
-        if claim.looks and mine.runs not in claim.looks:
-            return Row(claim, first_text, "undecided", off_look)
+        if off := _off_look(claim, mine.runs):
+            return Row(claim, first_text, "undecided", off)
         if first.high <= bound:
             return Row(claim, first_text, "holds", f"CI ≤ {target}")
         if first.low > bound:
@@ -308,8 +317,8 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
         eps = 1e-9  # 0.99 + 0.01 is 1.0 up to float rounding
         if few:
             return Row(claim, text, "undecided", few, True)
-        if claim.looks and mine.runs not in claim.looks:
-            return Row(claim, text, "undecided", off_look)
+        if off := _off_look(claim, mine.runs):
+            return Row(claim, text, "undecided", off)
         if end.low >= low - eps and end.high <= high + eps:
             return Row(claim, text, "holds", f"CI inside {band}")
         if end.low > high + eps:
@@ -334,9 +343,8 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     text = f"P({claim.group} beats {claim.than}) on {on}: {poi.format(2)}{level}; {mine.runs} vs {other.runs} runs"
     if few:
         return Row(claim, text, "undecided", few, True)
-    if claim.looks and (mine.runs != other.runs or mine.runs not in claim.looks):
-        return Row(claim, text, "undecided", f"{mine.runs} and {other.runs} runs: not a look of the design "
-                                             f"({plot.format_looks(claim.looks)} each)")
+    if off := _off_look(claim, mine.runs, other.runs):
+        return Row(claim, text, "undecided", off)
     if claim.kind == "alike":
         low, high = 0.5 - claim.margin, 0.5 + claim.margin
         band = f"[{low:.2f}, {high:.2f}]"
