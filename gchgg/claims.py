@@ -37,11 +37,16 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
   too narrow with few pairs, which the verdict does not read). Holds if its CI lies below 0 (the group
   reaches 0.9 earlier), contradicted if above 0, else undecided; undecided below ``min_pairs`` pairs
   (default 8).
-- ``score: auc`` (``faster``, ``faster_paired``, ``alike``): the same rules on the area under the
+- ``score: auc`` (``faster``, ``faster_pooled``, ``faster_paired``, ``alike``): the same rules on the area under the
   evaluation-success curve (the mean success over iterations 0 … R − 1, R the two groups' common
   range, :func:`gchgg.plot.auc_range`; higher is better) instead of first ≥ 0.9: the threshold's first
   crossing is noisy where a curve hovers near 0.9, the area weighs the whole curve. Default
   ``score: first``.
+- ``faster_pooled`` (``than`` B, ``tasks`` {T: n, ...}): P(a run of the group beats a run of B) as for
+  ``faster``, on each task T, averaged over the tasks (rliable's average probability of improvement,
+  :func:`gchgg.stats.average_poi_interval`: each task's runs resampled apart). Read once, when each task
+  has n runs of each group (the last look of its sequential design): holds if the CI lies above 0.5,
+  contradicted if below 0.5; undecided before that, and where the CI contains 0.5.
 - ``alike`` (``than`` B, ``margin`` m): P(a run of the group reaches 0.9 in fewer iterations than a run
   of B), as for ``faster``. Holds if its CI lies inside [0.5 − m, 0.5 + m] (neither beats the other in
   more than 0.5 + m of the pairs), contradicted if it lies outside that band and excludes 0.5, else
@@ -64,7 +69,7 @@ import functools
 import itertools
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,24 +77,27 @@ import numpy as np
 
 from gchgg import plot, stats
 
-__all__ = ["Claim", "Row", "judge", "judge_paired", "load_claims", "main", "measure", "measure_globs", "render",
-           "seed_files", "summary", "verdicts"]
+__all__ = ["Claim", "Row", "judge", "judge_paired", "judge_pooled", "load_claims", "main", "measure",
+           "measure_globs", "render", "seed_files", "summary", "verdicts"]
 
 KINDS = {"reaches_by": ("by",), "fails": ("within",), "final": ("level", "spread"), "faster": ("than",),
-         "faster_paired": ("than", "pairs"), "alike": ("than", "margin")}
+         "faster_pooled": ("than", "tasks"), "faster_paired": ("than", "pairs"), "alike": ("than", "margin")}
 """Each kind of claim and the fields it needs besides id, task, groups, claim and paper."""
 
 LOOKS_KINDS = ("reaches_by", "final", "faster", "alike")
 """The kinds whose interval may be drawn at Pocock's level for a sequential design's ``looks``."""
 
 VERDICTS = ("holds", "contradicted", "undecided")
+COMPARISONS = ("faster", "faster_pooled", "faster_paired", "alike")
+"""The kinds that compare two groups, on either score."""
 SCORES = ("first", "auc")
 """What a comparison reads: first ≥ 0.9 (fewer iterations is better) or the AUC (higher is better)."""
 
 
 @dataclass
 class Claim:
-    """One claim about one group (and, for ``faster``, the group it is compared with) on one task."""
+    """One claim about one group (and, for a comparison, the group it is compared with) on one task (for
+    ``faster_pooled``: on each of ``tasks``, ``task`` naming them together)."""
 
     id: str
     task: str
@@ -107,6 +115,7 @@ class Claim:
     score: str = "first"  # faster, faster_paired, alike: "first" (first >= 0.9) or "auc"
     runs: tuple[tuple[str, str], ...] = ()  # (group, glob under results) instead of <task>/<group>-seed<N>.csv
     looks: tuple[int, ...] = ()  # LOOKS_KINDS: runs per group at each planned look of a sequential design
+    tasks: tuple[tuple[str, int], ...] = ()  # faster_pooled: (task, runs per group when it is read), in order
 
 
 @dataclass
@@ -151,15 +160,20 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
         if missing:
             raise ValueError(f"{where}: kind {kind} needs {', '.join(KINDS[kind])}; {', '.join(missing)} missing")
         score = entry.get("score", "first")
-        if score not in SCORES or (score != "first" and kind not in ("faster", "faster_paired", "alike")):
-            raise ValueError(f"{where}: score {score!r} with kind {kind}; allowed: {', '.join(SCORES)} with faster, "
-                             "faster_paired and alike, first with the other kinds")
+        if score not in SCORES or (score != "first" and kind not in COMPARISONS):
+            raise ValueError(f"{where}: score {score!r} with kind {kind}; allowed: {', '.join(SCORES)} with "
+                             f"{', '.join(COMPARISONS)}; first with the other kinds")
         looks = entry.get("looks") or []
         if looks and (kind not in LOOKS_KINDS or not isinstance(looks, list)
                       or any(not isinstance(n, int) or n < 1 for n in looks)
                       or any(b <= a for a, b in itertools.pairwise(looks))):
             raise ValueError(f"{where}: looks {looks!r} with kind {kind}; allowed with {', '.join(LOOKS_KINDS)}: "
                              "an increasing list of run counts per group, each 1 or more")
+        tasks = entry.get("tasks") or {}
+        if kind == "faster_pooled" and (not isinstance(tasks, dict) or len(tasks) < 2 or any(
+                not isinstance(n, int) or isinstance(n, bool) or n < 1 for n in tasks.values())):
+            raise ValueError(f"{where}: tasks {tasks!r} with kind {kind}; allowed: a mapping of two or more tasks "
+                             "to the runs per group at which the claim is read, each 1 or more")
         groups, others = _as_list(entry["groups"]), _as_list(entry.get("than", ""))
         runs = entry.get("runs") or {}
         if not isinstance(runs, dict) or any(not isinstance(v, str) for v in runs.values()):
@@ -178,7 +192,9 @@ def load_claims(path: str | Path) -> tuple[list[Claim], dict]:
                     id=f"{entry['id']}{suffix}", task=entry["task"], kind=kind, group=group, than=than,
                     claim=entry["claim"].format(name=names.get(group, group), than=names.get(than, than)),
                     paper=entry["paper"], pairs=str(entry.get("pairs", "")), score=score,
-                    runs=tuple((g, runs[g]) for g in (group, than) if g in runs), looks=tuple(looks), **fields))
+                    runs=tuple((g, runs[g]) for g in (group, than) if g in runs), looks=tuple(looks),
+                    tasks=tuple((str(t), n) for t, n in tasks.items()) if kind == "faster_pooled" else (),
+                    **fields))
     if not claims:
         raise ValueError(f"{path}: no claims (a YAML mapping with a `claims` list)")
     return claims, settings
@@ -360,6 +376,48 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
     return Row(claim, text, "undecided", "CI contains 0.5")
 
 
+def judge_pooled(claim: Claim, task_groups: Callable[[str], dict[tuple[str, str], list[plot.Run]]],
+                 min_runs: int = 3) -> Row:
+    """A ``faster_pooled`` claim's row: the probability of improvement averaged over ``claim.tasks``, whose runs
+    ``task_groups(task)`` gives (grouped as :func:`gchgg.plot.group_runs`), each task scored on its own."""
+    scored, counts, few = [], [], []
+    for task, _ in claim.tasks:
+        pair = {key: runs for key, runs in task_groups(task).items() if key[1] in (claim.group, claim.than)}
+        by_label = {label: s for (_, label), s in plot.scores(pair).items()} if pair else {}
+        mine, other = by_label.get(claim.group), by_label.get(claim.than)
+        counts.append((task, mine.runs if mine else 0, other.runs if other else 0))
+        if short := _few(claim, {label: s.runs for label, s in by_label.items()}, min_runs):
+            few.append(f"{task}: {short}")
+        if mine and other:
+            scored.append((task, mine, other))
+    runs_text = ", ".join(f"{task} {a} vs {b}" for task, a, b in counts) + " runs"
+    if len(scored) < len(claim.tasks):
+        return Row(claim, f"—; {runs_text}", "undecided", "; ".join(few), True)
+    scored.sort(key=lambda item: item[0])  # the tasks' resampling order as gchgg.plot --compare's: the same digits
+    if claim.score == "auc":
+        poi = stats.average_poi_interval([a.auc for _, a, _ in scored], [b.auc for _, _, b in scored])
+        on = "AUC (each task over its two groups' common range)"
+    else:
+        poi = stats.average_poi_interval(
+            [a.first_bound for _, a, _ in scored], [b.first_bound for _, _, b in scored], lower_is_better=True,
+            x_censored=[a.censored for _, a, _ in scored], y_censored=[b.censored for _, _, b in scored])
+        on = f"first ≥ {plot.THRESHOLD}"
+    text = (f"P({claim.group} beats {claim.than}) on {on}, averaged over {len(scored)} tasks: {poi.format(2)}; "
+            f"{runs_text}")
+    if few:
+        return Row(claim, text, "undecided", "; ".join(few), True)
+    planned = dict(claim.tasks)
+    early = [f"{task} {a} and {b}" for task, a, b in counts if not a == b == planned[task]]
+    if early:
+        plan = ", ".join(f"{task} {n}" for task, n in claim.tasks)
+        return Row(claim, text, "undecided", f"read once, at {plan} runs of each; now {', '.join(early)}")
+    if poi.low > 0.5:
+        return Row(claim, text, "holds", "CI above 0.5")
+    if poi.high < 0.5:
+        return Row(claim, text, "contradicted", "CI below 0.5")
+    return Row(claim, text, "undecided", "CI contains 0.5")
+
+
 def judge_paired(claim: Claim, results: str | Path, min_pairs: int = 8) -> Row:
     """A ``faster_paired`` claim's row: the forks in ``<results>/<task>/<pairs>/`` paired by seed."""
     files = seed_files(Path(results) / claim.task / claim.pairs)
@@ -399,13 +457,22 @@ def verdicts(results: str | Path, claims: Sequence[Claim], min_runs: int = 3, sl
     loaded: dict = {}
     measured: dict = {}
     rows = []
+
+    def task_groups(task: str) -> dict:
+        if task not in loaded:
+            loaded[task] = _task_runs(results, task)
+        return loaded[task]
+
     for c in claims:
         if c.kind == "faster_paired":
             rows.append(judge_paired(c, results, min_pairs))
             continue
+        if c.kind == "faster_pooled":
+            rows.append(judge_pooled(c, task_groups, min_runs))
+            continue
         key = (c.task, c.runs) if c.runs else c.task
-        if key not in loaded:
-            loaded[key] = _glob_runs(results, c.task, c.runs) if c.runs else _task_runs(results, c.task)
+        if key not in measured:
+            loaded[key] = _glob_runs(results, c.task, c.runs) if c.runs else task_groups(c.task)
             measured[key] = _measure(loaded[key]) if loaded[key] else ({}, {})
         scores, finals = measured[key]
         if c.score == "auc":  # the AUC over the two groups' own common range, as gchgg.plot --compare reads it

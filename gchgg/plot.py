@@ -54,7 +54,10 @@ the table (``--table`` and ``--out`` still write theirs). ``--looks N1 N2 …`` 
 sequential design, planned before its first: the comparison is read at N1, N2, … runs per group (runs
 added until an interval decides, at most the last look's); the intervals are then drawn at Pocock's
 level for all those looks (:func:`gchgg.stats.sequential_alpha`), and the groups' present run count
-must be one of them.
+must be one of them. Without ``--looks``, runs of several tasks (``docs/results/push_new
+docs/results/pick_obstacle``) add a line averaging each score's probability over the tasks (rliable's
+average probability of improvement, each task's runs resampled apart), as the claims table's
+``faster_pooled`` claims read it.
 
 ``--task NAME`` takes every run as one of task ``NAME`` (one panel, that task's budget), for runs of a
 task kept in several folders, e.g. a Fig. 6 ablation's CSVs (``docs/results/fig6/eta/500-seed0.csv``,
@@ -382,7 +385,9 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
     in :func:`gchgg.stats.probability_of_improvement`: :attr:`Scores.first_bound`) and
     on the AUC (larger; over the range :func:`auc_range` gives the two groups' runs, or ``auc_iterations``),
     each with its 95 % interval and the runs it rests on; with ``looks`` (the runs per group at each planned
-    look of a sequential design, the present count among them), at Pocock's level for those looks instead."""
+    look of a sequential design, the present count among them), at Pocock's level for those looks instead.
+    Without ``looks``, where two or more tasks hold both groups, a last line averages both figures over those
+    tasks (:func:`gchgg.stats.average_poi_interval`)."""
     labels = {label for _, label in groups}
     for name in (first, second):
         if name not in labels:
@@ -392,7 +397,7 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
     if looks:
         alpha = stats.sequential_alpha(looks)
         level = f"; {100 * (1 - alpha):.1f} % intervals, Pocock's for looks at {format_looks(looks)}"
-    lines = []
+    lines, both = [], []
     for task in sorted({task for task, _ in groups}):
         if (task, first) not in groups or (task, second) not in groups:
             missing = first if (task, first) not in groups else second
@@ -410,6 +415,14 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
         lines.append(f"{task}: P({first} beats {second}) first >= {THRESHOLD}: {poi_first.format()}"
                      f" ({a.runs} vs {b.runs} runs); AUC over iterations 0-{a.auc_range - 1}: {poi_auc.format()}"
                      f"{level}")
+        both.append((task, a, b))
+    if len(both) > 1 and not looks:  # rliable's average probability of improvement over the tasks
+        average_first = stats.average_poi_interval(
+            [a.first_bound for _, a, _ in both], [b.first_bound for _, _, b in both], lower_is_better=True,
+            x_censored=[a.censored for _, a, _ in both], y_censored=[b.censored for _, _, b in both], rng=rng)
+        average_auc = stats.average_poi_interval([a.auc for _, a, _ in both], [b.auc for _, _, b in both], rng=rng)
+        lines.append(f"averaged over {', '.join(task for task, _, _ in both)}: P({first} beats {second}) first >= "
+                     f"{THRESHOLD}: {average_first.format()}; AUC: {average_auc.format()}")
     return lines
 
 

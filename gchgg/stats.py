@@ -26,7 +26,8 @@ seaborn and pandas for what is a few lines of array code, so it is not a depende
 - **Probability of improvement** P(X beats Y): over all pairs of a run of X and a run of Y (of the
   same task), the fraction where X's run is better plus half the fraction of ties (the Mann-Whitney
   U statistic over n · m), averaged over tasks. Its CI bootstraps the runs of X and of Y
-  independently (rliable's ``StratifiedIndependentBootstrap``).
+  independently (rliable's ``StratifiedIndependentBootstrap``); :func:`average_poi_interval` averages it
+  over tasks whose numbers of runs differ.
 
 One addition for right-censored scores (a run that never reached a threshold, recorded at the
 iteration it was censored at: its true score is that or worse): a pair's order counts only where the
@@ -50,8 +51,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Estimate", "bootstrap_indices", "iqm", "iqm_interval", "paired_difference_interval", "paired_tests",
-           "poi_interval", "probability_of_improvement", "sequential_alpha", "unpaired_difference_interval"]
+__all__ = ["Estimate", "average_poi_interval", "bootstrap_indices", "iqm", "iqm_interval",
+           "paired_difference_interval", "paired_tests", "poi_interval", "probability_of_improvement",
+           "sequential_alpha", "unpaired_difference_interval"]
 
 REPS = 2000
 """Bootstrap resamples per interval (rliable's default)."""
@@ -207,6 +209,42 @@ def poi_interval(x, y, *, lower_is_better: bool = False, x_censored=None, y_cens
     samples = _poi(_resample(x, ix), _resample(y, iy), _resample(cx, ix), _resample(cy, iy))
     low, high = _percentiles(samples, alpha)
     return Estimate(float(_poi(x, y, cx, cy)), low, high, x.shape[0], y.shape[0])
+
+
+def average_poi_interval(x, y, *, lower_is_better: bool = False, x_censored=None, y_censored=None,
+                         reps: int = REPS, alpha: float = ALPHA, rng: np.random.Generator | None = None) -> Estimate:
+    """:func:`probability_of_improvement` averaged over tasks whose run counts may differ, and its ``1 − alpha``
+    interval: rliable's average probability of improvement, the runs of X and of Y resampled independently
+    within each task (task by task, X's runs then Y's).
+
+    ``x`` and ``y`` are sequences of one ``[runs]`` score vector per task (the same tasks, in the same order);
+    ``x_censored`` / ``y_censored`` likewise, one mask per task, or None. ``runs`` and ``other_runs`` of the
+    result count the runs of all tasks.
+
+    >>> average_poi_interval([[1, 2], [9]], [[5, 6, 7], [1]], lower_is_better=True).format()  # 1 and 0
+    '0.50 [0.50, 0.50]'
+    """
+    _check(reps, alpha)
+    if len(x) != len(y) or not len(x):
+        raise ValueError(f"average_poi_interval: {len(x)} tasks of the first group, {len(y)} of the second; "
+                         "allowed: one score vector per task for each, the same tasks, at least one")
+    masks = []
+    for name, mask in (("x_censored", x_censored), ("y_censored", y_censored)):
+        if mask is not None and len(mask) != len(x):
+            raise ValueError(f"average_poi_interval: {name} holds {len(mask)} masks for {len(x)} tasks; "
+                             "allowed: one per task, or None")
+        masks.append(mask if mask is not None else [None] * len(x))
+    rng, point, samples = _rng(rng), 0.0, np.zeros(reps)
+    for task, (xt, yt, mx, my) in enumerate(zip(x, y, *masks, strict=True)):
+        xt, yt, cx, cy = _oriented(xt, yt, lower_is_better, mx, my, f"average_poi_interval (task {task})")
+        if xt.shape[1] != 1:
+            raise ValueError(f"average_poi_interval (task {task}): scores of shape {xt.shape}; allowed: [runs]")
+        ix = bootstrap_indices(xt.shape[0], 1, reps, rng)
+        iy = bootstrap_indices(yt.shape[0], 1, reps, rng)
+        point += float(_poi(xt, yt, cx, cy)) / len(x)
+        samples += _poi(_resample(xt, ix), _resample(yt, iy), _resample(cx, ix), _resample(cy, iy)) / len(x)
+    low, high = _percentiles(samples, alpha)
+    return Estimate(point, low, high, sum(len(t) for t in x), sum(len(t) for t in y))
 
 
 def paired_difference_interval(x, y, *, reps: int = REPS, alpha: float = ALPHA,

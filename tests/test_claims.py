@@ -288,3 +288,42 @@ claims:
     assert_wider(rows["looked"], than=rows["plain"])
     assert rows["unplanned"].verdict == "undecided"
     assert rows["unplanned"].reason == "8 runs: not a look of the design (4, 6 runs)"
+
+
+def test_a_pooled_claim_averages_the_tasks_and_is_read_only_at_its_planned_runs(tmp_path):
+    # t1: a first at 2, 3, 2 against b at 5, 6, 7 (a wins every pair); t2: a at 6, 7, 5 against b at 2, 3, 2
+    # (b wins every pair); t3: four runs of each, a at 2, 3, 2, 3 against b at 5, 6, 6, 4 (a wins every pair)
+    for task, a, b in [("t1", [2, 3, 2], [5, 6, 7]), ("t2", [6, 7, 5], [2, 3, 2]), ("t3", [2, 3, 2, 3], [5, 6, 6, 4])]:
+        for seed, at in enumerate(a):
+            write_csv(tmp_path / task / f"a-seed{seed}.csv", reaching(at, length=8))
+        for seed, at in enumerate(b):
+            write_csv(tmp_path / task / f"b-seed{seed}.csv", reaching(at, length=8))
+    write_csv(tmp_path / "t4" / "a-seed0.csv", reaching(2, length=8))  # no runs of b
+    (tmp_path / "claims.yaml").write_text("""
+claims:
+  - {id: even, task: both, kind: faster_pooled, tasks: {t1: 3, t2: 3}, groups: [a], than: b, claim: c, paper: p}
+  - {id: ahead, task: both, kind: faster_pooled, tasks: {t1: 3, t3: 4}, groups: [a], than: b, claim: c, paper: p}
+  - {id: early, task: both, kind: faster_pooled, tasks: {t1: 3, t3: 3}, groups: [a], than: b, claim: c, paper: p}
+  - {id: area, task: both, kind: faster_pooled, score: auc, tasks: {t1: 3, t2: 3}, groups: [a], than: b,
+     claim: c, paper: p}
+  - {id: missing, task: both, kind: faster_pooled, tasks: {t1: 3, t4: 3}, groups: [a], than: b, claim: c, paper: p}
+""")
+    loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
+    rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
+    assert rows["even"].measured == ("P(a beats b) on first ≥ 0.9, averaged over 2 tasks: 0.50 [0.50, 0.50]; "
+                                     "t1 3 vs 3, t2 3 vs 3 runs")
+    assert (rows["even"].verdict, rows["even"].reason) == ("undecided", "CI contains 0.5")
+    assert rows["area"].measured.startswith("P(a beats b) on AUC (each task over its two groups' common range), "
+                                            "averaged over 2 tasks: 0.50 [0.50, 0.50]")
+    assert rows["ahead"].measured.startswith("P(a beats b) on first ≥ 0.9, averaged over 2 tasks: 1.00 [1.00, 1.00]")
+    assert (rows["ahead"].verdict, rows["ahead"].reason) == ("holds", "CI above 0.5")
+    assert (rows["early"].verdict, rows["early"].reason) == (
+        "undecided", "read once, at t1 3, t3 3 runs of each; now t3 4 and 4")
+    assert rows["missing"].measured == "—; t1 3 vs 3, t4 1 vs 0 runs"
+    assert (rows["missing"].verdict, rows["missing"].reason) == ("undecided", "t4: a: 1 run; b: 0 runs (3 needed)")
+    for tasks in ("{t1: 3}", "{t1: 0, t2: 3}", "[t1, t2]"):
+        (tmp_path / "bad.yaml").write_text(f"claims:\n  - {{id: x, task: t, kind: faster_pooled, tasks: {tasks}, "
+                                           "groups: [a], than: b, claim: c, paper: p}\n")
+        with pytest.raises(ValueError, match="claim x: tasks .* with kind faster_pooled; allowed: a mapping of two "
+                                             "or more tasks"):
+            claims.load_claims(tmp_path / "bad.yaml")

@@ -215,6 +215,24 @@ def test_compare_prints_the_probability_that_a_run_of_one_group_beats_one_of_the
     assert "--compare fast her: no group 'her'; the groups are fast, slow" in capsys.readouterr().err
 
 
+def test_compare_over_several_tasks_adds_their_average_and_looks_leave_it_out(tmp_path, capsys):
+    # ahead: a first at 1, 2 against b at 3, 4, 3 (a wins every pair); behind: a at 4, 3 against b at 1, 2
+    for task, a, b in [("ahead", [1, 2], [3, 4, 3]), ("behind", [4, 3], [1, 2])]:
+        for seed, at in enumerate(a):
+            write_csv(tmp_path / task / f"a-seed{seed}.csv", [0.0] * at + [1.0] * (6 - at))
+        for seed, at in enumerate(b):
+            write_csv(tmp_path / task / f"b-seed{seed}.csv", [0.0] * at + [1.0] * (6 - at))
+    plot.main([str(tmp_path / "ahead"), str(tmp_path / "behind"), "--compare", "a", "b"])
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 3  # 1 and 0 in every resample: the average is 0.5 in each
+    assert out[2] == "averaged over ahead, behind: P(a beats b) first >= 0.9: 0.50 [0.50, 0.50]; AUC: 0.50 [0.50, 0.50]"
+    write_csv(tmp_path / "ahead" / "a-seed2.csv", [0.0] * 2 + [1.0] * 4)
+    write_csv(tmp_path / "behind" / "a-seed2.csv", [0.0] * 3 + [1.0] * 3)
+    write_csv(tmp_path / "behind" / "b-seed2.csv", [0.0] * 1 + [1.0] * 5)
+    plot.main([str(tmp_path / "ahead"), str(tmp_path / "behind"), "--compare", "a", "b", "--looks", "2", "3"])
+    assert not any(line.startswith("averaged") for line in capsys.readouterr().out.splitlines())
+
+
 def test_compare_counts_ties_half_and_leaves_the_order_of_censored_runs_open(tmp_path, capsys):
     # a: 0.9 at 1, and one run never (censored at 4); b: 0.9 at 1, and at 2
     for name, rates in {"a-seed0": [0, 1, 1, 1], "a-seed1": [0, 0, 0, 0],

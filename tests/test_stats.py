@@ -148,6 +148,47 @@ def test_the_poi_interval_resamples_each_group_independently():
     assert stats.poi_interval([1, 2], [5, 6], lower_is_better=True).format() == "1.00 [1.00, 1.00]"
 
 
+def test_the_average_over_tasks_resamples_each_task_and_group_independently():
+    """Tasks of 3 vs 4, 2 vs 2 and 1 vs 3 runs (one censored): the mean of the tasks' pair counts, and the
+    percentiles of that mean over resamples drawn task by task, X's runs then Y's."""
+    x = [np.array([74.0, 84.0, 75.0]), np.array([120.0, 300.0]), np.array([90.0])]
+    y = [np.array([79.0, 84.0, 86.0, 95.0]), np.array([130.0, 110.0]), np.array([80.0, 200.0, 95.0])]
+    cx, cy = [None, [False, True], None], [None, [False, False], [False, True, False]]
+    estimate = stats.average_poi_interval(x, y, lower_is_better=True, x_censored=cx, y_censored=cy, reps=300,
+                                          rng=np.random.default_rng(7))
+    masks = lambda masks, t, n: list(masks[t]) if masks[t] is not None else [False] * n  # noqa: E731
+    rng, draws = np.random.default_rng(7), []
+    for t in range(3):
+        draws.append((rng.integers(0, len(x[t]), size=(300, len(x[t]), 1))[..., 0],
+                      rng.integers(0, len(y[t]), size=(300, len(y[t]), 1))[..., 0]))
+    reference = []
+    for r in range(300):
+        per_task = []
+        for t, (ix, iy) in enumerate(draws):
+            mx, my = np.array(masks(cx, t, len(x[t]))), np.array(masks(cy, t, len(y[t])))
+            per_task.append(reference_poi(x[t][ix[r]].tolist(), y[t][iy[r]].tolist(), True,
+                                          mx[ix[r]].tolist(), my[iy[r]].tolist()))
+        reference.append(float(sum(per_task) / 3))
+    point = sum(reference_poi(x[t].tolist(), y[t].tolist(), True, masks(cx, t, len(x[t])), masks(cy, t, len(y[t])))
+                for t in range(3)) / 3
+    assert estimate.point == pytest.approx(float(point))
+    assert (estimate.low, estimate.high) == pytest.approx(tuple(np.percentile(reference, [2.5, 97.5])))
+    assert (estimate.runs, estimate.other_runs) == (6, 9)
+
+
+def test_the_average_over_tasks_of_equal_runs_is_the_matrix_figure_and_a_sure_task_adds_no_width():
+    x, y = np.array([[1.0, 5.0], [3.0, 2.0], [2.0, 9.0]]), np.array([[2.0, 4.0], [2.5, 8.0], [0.5, 1.0]])
+    average = stats.average_poi_interval(list(x.T), list(y.T))
+    assert average.point == pytest.approx(stats.probability_of_improvement(x, y))
+    # X beats Y in every pair of task 0 and loses every pair of task 1: 1 and 0 in every resample
+    assert stats.average_poi_interval([[1, 2], [9, 8]], [[5, 6, 7], [1, 2]], lower_is_better=True).format() == \
+        "0.50 [0.50, 0.50]"
+    with pytest.raises(ValueError, match="2 tasks of the first group, 1 of the second"):
+        stats.average_poi_interval([[1], [2]], [[1]])
+    with pytest.raises(ValueError, match="x_censored holds 1 masks for 2 tasks"):
+        stats.average_poi_interval([[1], [2]], [[1], [2]], x_censored=[[False]])
+
+
 def test_the_unpaired_interval_resamples_the_groups_apart():
     """Partners that move together: the paired interval is a point, the unpaired one is wide."""
     x, y = [10.0, 20.0, 30.0, 40.0], [12.0, 22.0, 32.0, 42.0]
