@@ -284,6 +284,15 @@ def _pocock_alpha(looks: tuple[int, ...]) -> float:
     return stats.sequential_alpha(looks)
 
 
+def _faster_verdict(claim: Claim, text: str, poi: stats.Estimate) -> Row:
+    """A faster claim's verdict on its probability of improvement: holds above 0.5, contradicted below."""
+    if poi.low > 0.5:
+        return Row(claim, text, "holds", "CI above 0.5")
+    if poi.high < 0.5:
+        return Row(claim, text, "contradicted", "CI below 0.5")
+    return Row(claim, text, "undecided", "CI contains 0.5")
+
+
 def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[np.ndarray, int, int]],
           min_runs: int = 3, slack: float = 0.1) -> Row:
     """The claim's row: its measured figure and its verdict by the rule of its kind (module docstring)."""
@@ -369,11 +378,7 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
         if poi.low > 0.5 or poi.high < 0.5:
             return Row(claim, text, "contradicted", f"CI outside {band}, excluding 0.5")
         return Row(claim, text, "undecided", f"CI contains 0.5, reaches outside {band}")
-    if poi.low > 0.5:
-        return Row(claim, text, "holds", "CI above 0.5")
-    if poi.high < 0.5:
-        return Row(claim, text, "contradicted", "CI below 0.5")
-    return Row(claim, text, "undecided", "CI contains 0.5")
+    return _faster_verdict(claim, text, poi)
 
 
 def judge_pooled(claim: Claim, task_groups: Callable[[str], dict[tuple[str, str], list[plot.Run]]],
@@ -411,11 +416,7 @@ def judge_pooled(claim: Claim, task_groups: Callable[[str], dict[tuple[str, str]
     if early:
         plan = ", ".join(f"{task} {n}" for task, n in claim.tasks)
         return Row(claim, text, "undecided", f"read once, at {plan} runs of each; now {', '.join(early)}")
-    if poi.low > 0.5:
-        return Row(claim, text, "holds", "CI above 0.5")
-    if poi.high < 0.5:
-        return Row(claim, text, "contradicted", "CI below 0.5")
-    return Row(claim, text, "undecided", "CI contains 0.5")
+    return _faster_verdict(claim, text, poi)
 
 
 def judge_paired(claim: Claim, results: str | Path, min_pairs: int = 8) -> Row:
