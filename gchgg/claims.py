@@ -112,7 +112,7 @@ class Claim:
     than: str = ""
     margin: float = math.nan
     pairs: str = ""  # faster_paired: the task's subfolder of paired forks
-    score: str = "first"  # faster, faster_paired, alike: "first" (first >= 0.9) or "auc"
+    score: str = "first"  # COMPARISONS: "first" (first >= 0.9) or "auc"
     runs: tuple[tuple[str, str], ...] = ()  # (group, glob under results) instead of <task>/<group>-seed<N>.csv
     looks: tuple[int, ...] = ()  # LOOKS_KINDS: runs per group at each planned look of a sequential design
     tasks: tuple[tuple[str, int], ...] = ()  # faster_pooled: (task, runs per group when it is read), in order
@@ -399,14 +399,8 @@ def judge_pooled(claim: Claim, task_groups: Callable[[str], dict[tuple[str, str]
     if len(scored) < len(claim.tasks):
         return Row(claim, f"—; {runs_text}", "undecided", "; ".join(few), True)
     scored.sort(key=lambda item: item[0])  # the tasks' resampling order as gchgg.plot --compare's: the same digits
-    if claim.score == "auc":
-        poi = stats.average_poi_interval([a.auc for _, a, _ in scored], [b.auc for _, _, b in scored])
-        on = "AUC (each task over its two groups' common range)"
-    else:
-        poi = stats.average_poi_interval(
-            [a.first_bound for _, a, _ in scored], [b.first_bound for _, _, b in scored], lower_is_better=True,
-            x_censored=[a.censored for _, a, _ in scored], y_censored=[b.censored for _, _, b in scored])
-        on = f"first ≥ {plot.THRESHOLD}"
+    poi = plot.average_poi([(a, b) for _, a, b in scored], claim.score)
+    on = "AUC (each task over its two groups' common range)" if claim.score == "auc" else f"first ≥ {plot.THRESHOLD}"
     text = (f"P({claim.group} beats {claim.than}) on {on}, averaged over {len(scored)} tasks: {poi.format(2)}; "
             f"{runs_text}")
     if few:

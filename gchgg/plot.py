@@ -89,8 +89,8 @@ import numpy as np
 
 from gchgg import stats
 
-__all__ = ["Run", "Scores", "auc", "auc_range", "budget_of", "compare", "find_runs", "first_score", "format_looks",
-           "group_runs", "iqr", "paired", "plot", "scores", "seed_of", "table"]
+__all__ = ["Run", "Scores", "auc", "auc_range", "average_poi", "budget_of", "compare", "find_runs", "first_score",
+           "format_looks", "group_runs", "iqr", "paired", "plot", "scores", "seed_of", "table"]
 
 _IGNORED = ("seed", "resume", "threads", "matmul", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
 _SEED_SUFFIX = re.compile(r"-seed\d+$")
@@ -417,13 +417,23 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
                      f"{level}")
         both.append((task, a, b))
     if len(both) > 1 and not looks:  # rliable's average probability of improvement over the tasks
-        average_first = stats.average_poi_interval(
-            [a.first_bound for _, a, _ in both], [b.first_bound for _, _, b in both], lower_is_better=True,
-            x_censored=[a.censored for _, a, _ in both], y_censored=[b.censored for _, _, b in both], rng=rng)
-        average_auc = stats.average_poi_interval([a.auc for _, a, _ in both], [b.auc for _, _, b in both], rng=rng)
+        pairs = [(a, b) for _, a, b in both]
+        average_first, average_auc = (average_poi(pairs, score, rng) for score in ("first", "auc"))
         lines.append(f"averaged over {', '.join(task for task, _, _ in both)}: P({first} beats {second}) first >= "
                      f"{THRESHOLD}: {average_first.format()}; AUC: {average_auc.format()}")
     return lines
+
+
+def average_poi(pairs: Sequence[tuple[Scores, Scores]], score: str = "first",
+                rng: np.random.Generator | None = None) -> stats.Estimate:
+    """P(a run of the first group beats one of the second) averaged over tasks, one ``(first, second)`` pair of
+    :class:`Scores` per task (:func:`gchgg.stats.average_poi_interval`), on ``score``: ``"first"`` (fewer
+    iterations to 0.9, censored runs as in :func:`compare`) or ``"auc"`` (a larger area)."""
+    if score == "auc":
+        return stats.average_poi_interval([a.auc for a, _ in pairs], [b.auc for _, b in pairs], rng=rng)
+    return stats.average_poi_interval([a.first_bound for a, _ in pairs], [b.first_bound for _, b in pairs],
+                                      lower_is_better=True, x_censored=[a.censored for a, _ in pairs],
+                                      y_censored=[b.censored for _, b in pairs], rng=rng)
 
 
 def format_looks(looks: Sequence[int]) -> str:
