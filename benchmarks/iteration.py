@@ -12,7 +12,10 @@ env and 1,000 plain-torch DDPG updates (``benchmarks/agent_update.py``'s ``BareD
 
 After the last algorithm's iterations its buffer is filled to 5,000 episodes and one checkpoint is
 timed: seconds, bytes written and peak memory, against the full-buffer checkpoint written before
-December 2026. gchgg is then timed with C = 1, 5 and 50 chunks (C = 50 is the default, the
+December 2026. Where gchgg's rollout and update phases go follows (:func:`where_it_goes`): the rollout
+against the same episodes' physics replayed bare and the actor's calls alone, the update phase against
+its samples, updates and diagnostics each alone and with one draw before each update. gchgg is then
+timed with C = 1, 5 and 50 chunks (C = 50 is the default, the
 original's per-episode loop; C = 1 collects all episodes with one policy, then runs all updates), one
 trainer per C and their iterations in alternating rounds, and the ratio C=50 / C=1 printed. Then
 wall-clock seconds per gchgg iteration with evaluation in-line, in the background process and
@@ -46,6 +49,7 @@ import statistics
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,8 +66,9 @@ import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
 from gchgg.evaluator import BackgroundEvaluator  # noqa: E402
 from gchgg.linear import MATMUL_BACKENDS, resolve_matmul, resolve_precision, use_onednn  # noqa: E402
+from gchgg.metrics import IterationStats  # noqa: E402
 from gchgg.rollout import collect  # noqa: E402
-from gchgg.train import CONF_DIR, Trainer  # noqa: E402
+from gchgg.train import BATCHES_AHEAD, CONF_DIR, Trainer  # noqa: E402
 
 PHASES = ("goals", "rollout", "store", "update")  # what an iteration costs; eval and checkpoint apart
 
@@ -232,6 +237,106 @@ def algo_seconds(
         seconds = checkpoint_cost(last, Path(run_dir) / algos[-1])
         print(f"  checkpoint / iteration = {seconds / medians[algos[-1]][0]:.3f} (target <= 0.02)")
     return medians, _round_seconds(rows)
+
+
+def where_it_goes(updates: int, threads: int, matmul: str = "auto", rounds: int = 4) -> None:
+    """Where a gchgg iteration's rollout and update phases spend their time beyond the floor's two parts:
+    :func:`rollout_split` and :func:`update_split` on one trainer (after one untimed iteration), the
+    median of ``rounds`` rounds of each part."""
+    with tempfile.TemporaryDirectory() as run_dir:
+        trainer = _ready_trainer("gchgg", updates, threads, 50, matmul, f"{run_dir}/gchgg")
+        rollout_split(trainer, rounds)
+        update_split(trainer, updates, rounds)
+
+
+def rollout_split(trainer: Trainer, rounds: int) -> None:
+    """The iteration's episodes as it collects them (the policy acting between the physics steps, its
+    calls timed), then the same episodes' physics replayed bare (the same resets and actions, open loop:
+    the same trajectories, checked equal), then the actor's calls alone on the recorded observations;
+    what the closed loop costs beyond the last two is each slowing the other down."""
+    env, agent, steps = trainer.env, trainer.agent, trainer.steps
+    act = partial(agent.act, explore=True, generator=trainer.parts.streams["explore"])
+    episodes = trainer.cfg.train.episodes // env.num_envs  # the per-episode loop: one env, 50 resets
+    parts: dict[str, list[float]] = {"closed": [], "acting": [], "replay": [], "actor": []}
+    acting = [0.0]  # seconds in the actor's calls during a closed-loop rollout
+
+    def timed_act(observation, goal):
+        tick = time.perf_counter()
+        action = act(observation, goal)
+        acting[0] += time.perf_counter() - tick
+        return action
+
+    for _ in range(rounds):
+        resets, recorded, acting[0] = env.random_state(), [], 0.0
+        start = time.perf_counter()
+        with torch.inference_mode():
+            for _ in range(episodes):
+                recorded.append(collect(env, timed_act, steps, env.reset()))
+        parts["closed"].append(time.perf_counter() - start)
+        parts["acting"].append(acting[0])
+
+        env.set_random_state(resets)
+        same = True
+        start = time.perf_counter()
+        with torch.inference_mode():
+            for episode in recorded:
+                actions = iter(episode["action"].unbind(1))
+                replayed = collect(env, lambda observation, goal, a=actions: next(a), steps, env.reset())
+                same = same and torch.equal(replayed["next", "observation"], episode["next", "observation"])
+        parts["replay"].append(time.perf_counter() - start)
+        if not same:
+            raise RuntimeError("replaying the recorded actions did not give the recorded trajectories")
+
+        inputs = [pair for episode in recorded
+                  for pair in zip(episode["observation"].unbind(1), episode["desired_goal"].unbind(1), strict=True)]
+        start = time.perf_counter()
+        with torch.inference_mode():
+            for observation, goal in inputs:
+                act(observation, goal)
+        parts["actor"].append(time.perf_counter() - start)
+    m = {key: statistics.median(values) for key, values in parts.items()}
+    print(f"where gchgg's rollout goes ({episodes} episodes, one trainer, the median of {rounds} rounds): "
+          f"{m['closed']:.2f} s = the same episodes' physics replayed bare {m['replay']:.2f} s + the actor's "
+          f"{episodes * steps:,} calls alone {m['actor']:.2f} s + {m['closed'] - m['replay'] - m['actor']:.2f} s "
+          f"of the two slowing each other (the actor's calls between the physics steps {m['acting']:.2f} s, "
+          f"the physics beside them {m['closed'] - m['acting']:.2f} s)", flush=True)
+
+
+def update_split(trainer: Trainer, updates: int, rounds: int) -> None:
+    """``updates`` updates as the trainer runs them (:meth:`Trainer.updates`: groups of batches drawn, then
+    their updates, then their diagnostics) and with one draw before each update, each first in turn; then
+    ``updates`` samples, ``updates`` DDPG updates on them and their diagnostics
+    (:class:`gchgg.metrics.IterationStats`), each timed alone."""
+    agent, buffer = trainer.agent, trainer.buffer
+
+    def one_by_one() -> None:  # one draw before each update, its diagnostics after it
+        stats = IterationStats()
+        for _ in range(updates):
+            batch = buffer.sample()
+            stats.add_update(agent.update(batch), batch, agent)
+
+    orders = {"grouped": lambda: trainer.updates(updates, IterationStats()), "one by one": one_by_one}
+    parts: dict[str, list[float]] = {key: [] for key in (*orders, "sample", "update", "diagnostics")}
+    for turn in range(rounds):
+        for order in (orders if turn % 2 else reversed(orders)):
+            start = time.perf_counter()
+            orders[order]()
+            parts[order].append(time.perf_counter() - start)
+        start = time.perf_counter()
+        batches = [buffer.sample() for _ in range(updates)]
+        parts["sample"].append(time.perf_counter() - start)
+        start = time.perf_counter()
+        losses = [agent.update(batch) for batch in batches]
+        parts["update"].append(time.perf_counter() - start)
+        stats, start = IterationStats(), time.perf_counter()
+        for loss, batch in zip(losses, batches, strict=True):
+            stats.add_update(loss, batch, agent)
+        parts["diagnostics"].append(time.perf_counter() - start)
+    m = {key: statistics.median(values) for key, values in parts.items()}
+    print(f"where gchgg's update phase goes: {updates:,} samples {m['sample']:.2f} s + {updates:,} DDPG updates "
+          f"{m['update']:.2f} s + their diagnostics {m['diagnostics']:.2f} s, each alone; together "
+          f"{m['grouped']:.2f} s as the trainer orders them ({BATCHES_AHEAD} batches drawn, then their updates, "
+          f"then their diagnostics), {m['one by one']:.2f} s with one draw before each update", flush=True)
 
 
 def chunk_seconds(
@@ -451,6 +556,8 @@ def main() -> None:
         print(f"gchgg / her = {within_rounds('gchgg', 'her')} (target <= 1.25; the paper: 179 s / 52 s = 3.4)")
     if {"her", "cher"} <= set(seconds):
         print(f"cher / her = {within_rounds('cher', 'her')} (target <= 1.3)")
+    if "gchgg" in seconds:
+        where_it_goes(args.updates, args.threads, args.matmul)
     by_chunks, rounds = chunk_seconds(args.chunks, args.iterations, args.updates, args.threads, args.matmul)
     for chunks, (total, phases) in by_chunks.items():
         detail = ", ".join(f"{p} {s:.2f}" for p, s in phases.items())

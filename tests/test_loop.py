@@ -14,7 +14,7 @@ import torch
 from hydra.errors import ConfigCompositionException
 from test_train import config, tiny
 
-from gchgg import evaluator, train
+from gchgg import evaluator, metrics, train
 from gchgg.graph import EuclideanMetric, GoalGraph
 from gchgg.hgg import HGGGoalGenerator
 from gchgg.samplers import AdaptiveTradeoff, CherSampler, EnergySampler, ExponentialTradeoff, GraphCurriculumSampler
@@ -168,6 +168,27 @@ def test_chunks_interleave_collection_and_updates(tmp_path):
     versions = actor_versions(batched)
     batched.iteration_step()
     assert len(versions) == batched.steps and len(set(versions)) == 1
+
+
+@pytest.mark.parametrize("algo", ["gchgg", "cher", "her"])
+def test_updates_drawn_in_groups_equal_one_draw_before_each_update(algo, tmp_path):
+    grouped, one_by_one = (trainer(tmp_path / name, algo=algo) for name in ("grouped", "one_by_one"))
+    for t in (grouped, one_by_one):
+        t.iteration_step()  # the same seed: the same buffer, networks and generators
+    count = train.BATCHES_AHEAD + 5  # a whole group and part of another
+    grouped_stats, reference_stats = metrics.IterationStats(), metrics.IterationStats()
+    grouped.updates(count, grouped_stats)
+    for _ in range(count):  # the reference order: draw, update, diagnostics, one update at a time
+        batch = one_by_one.buffer.sample()
+        reference_stats.add_update(one_by_one.agent.update(batch), batch, one_by_one.agent)
+    assert grouped.agent.num_updates == one_by_one.agent.num_updates
+    mine, theirs = grouped.agent.state_dict()["networks"], one_by_one.agent.state_dict()["networks"]
+    assert mine.keys() == theirs.keys() and all(torch.equal(mine[key], theirs[key]) for key in mine)
+    assert grouped_stats.losses == reference_stats.losses and len(grouped_stats.losses["loss_value"]) == count
+    assert torch.equal(torch.stack(grouped_stats.clipped), torch.stack(reference_stats.clipped))
+    assert grouped_stats.curriculum.keys() == reference_stats.curriculum.keys()
+    for key, values in grouped_stats.curriculum.items():
+        assert torch.equal(torch.stack(values), torch.stack(reference_stats.curriculum[key]))
 
 
 def test_chunks_must_divide_the_episodes(tmp_path):
