@@ -250,30 +250,47 @@ def where_it_goes(updates: int, threads: int, matmul: str = "auto", rounds: int 
 
 
 def rollout_split(trainer: Trainer, rounds: int) -> None:
-    """The iteration's episodes as it collects them (the policy acting between the physics steps, its
-    calls timed), then the same episodes' physics replayed bare (the same resets and actions, open loop:
-    the same trajectories, checked equal), then the actor's calls alone on the recorded observations;
-    what the closed loop costs beyond the last two is each slowing the other down."""
-    env, agent, steps = trainer.env, trainer.agent, trainer.steps
-    act = partial(agent.act, explore=True, generator=trainer.parts.streams["explore"])
+    """The iteration's episodes as it collects them (the policy acting between the physics steps), and the
+    same episodes through ``agent.act`` instead of the trainer's
+    :meth:`~gchgg.agent.DDPGAgent.rollout_policy` and with the policy's calls timed (each way first in
+    turn); then the same episodes' physics replayed bare (the same resets and actions, open loop: the same
+    trajectories, checked equal) and the policy's calls alone on the recorded observations. What the
+    closed loop costs beyond the last two is each slowing the other down."""
+    env, agent, steps, explore = trainer.env, trainer.agent, trainer.steps, trainer.parts.streams["explore"]
     episodes = trainer.cfg.train.episodes // env.num_envs  # the per-episode loop: one env, 50 resets
-    parts: dict[str, list[float]] = {"closed": [], "acting": [], "replay": [], "actor": []}
-    acting = [0.0]  # seconds in the actor's calls during a closed-loop rollout
+    parts: dict[str, list[float]] = {key: [] for key in ("closed", "through act", "timed", "acting", "replay", "actor")}
+    acting = [0.0]  # seconds in the policy's calls during a closed-loop rollout
 
-    def timed_act(observation, goal):
-        tick = time.perf_counter()
-        action = act(observation, goal)
-        acting[0] += time.perf_counter() - tick
-        return action
+    def timed(policy):
+        def timed_policy(observation, goal):
+            tick = time.perf_counter()
+            action = policy(observation, goal)
+            acting[0] += time.perf_counter() - tick
+            return action
 
-    for _ in range(rounds):
-        resets, recorded, acting[0] = env.random_state(), [], 0.0
-        start = time.perf_counter()
+        return timed_policy
+
+    def episodes_with(policy) -> tuple[float, list]:  # a closed-loop rollout with a new policy() per episode
+        recorded, start = [], time.perf_counter()
         with torch.inference_mode():
             for _ in range(episodes):
-                recorded.append(collect(env, timed_act, steps, env.reset()))
-        parts["closed"].append(time.perf_counter() - start)
-        parts["acting"].append(acting[0])
+                recorded.append(collect(env, policy(), steps, env.reset()))
+        return time.perf_counter() - start, recorded
+
+    ways = {"closed": lambda: agent.rollout_policy(explore),  # as the trainer acts
+            "through act": lambda: partial(agent.act, explore=True, generator=explore),
+            "timed": lambda: timed(agent.rollout_policy(explore))}  # the trainer's, its calls timed
+    for turn in range(rounds):
+        resets, draws = env.random_state(), explore.get_state()
+        for way in (ways if turn % 2 else reversed(ways)):  # each first in turn
+            env.set_random_state(resets)
+            explore.set_state(draws)  # the same episodes each way (the same actions and draws, call for call)
+            acting[0] = 0.0
+            seconds, recorded = episodes_with(ways[way])
+            parts[way].append(seconds)
+            if way == "timed":
+                parts["acting"].append(acting[0])
+        act = agent.rollout_policy(explore)
 
         env.set_random_state(resets)
         same = True
@@ -298,8 +315,10 @@ def rollout_split(trainer: Trainer, rounds: int) -> None:
     print(f"where gchgg's rollout goes ({episodes} episodes, one trainer, the median of {rounds} rounds): "
           f"{m['closed']:.2f} s = the same episodes' physics replayed bare {m['replay']:.2f} s + the actor's "
           f"{episodes * steps:,} calls alone {m['actor']:.2f} s + {m['closed'] - m['replay'] - m['actor']:.2f} s "
-          f"of the two slowing each other (the actor's calls between the physics steps {m['acting']:.2f} s, "
-          f"the physics beside them {m['closed'] - m['acting']:.2f} s)", flush=True)
+          f"of the two slowing each other (timed call by call: the actor's calls between the physics steps "
+          f"{m['acting']:.2f} s, the physics beside them {m['timed'] - m['acting']:.2f} s)", flush=True)
+    print(f"  the same episodes through agent.act (explore=True) instead of DDPGAgent.rollout_policy (the trainer's): "
+          f"{m['through act']:.2f} s against {m['closed']:.2f} s", flush=True)
 
 
 def update_split(trainer: Trainer, updates: int, rounds: int) -> None:

@@ -30,8 +30,9 @@ from __future__ import annotations
 import copy
 import math
 import numbers
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, fields, replace
+from functools import partial
 from typing import Any
 
 import torch
@@ -666,6 +667,40 @@ class DDPGAgent:
             return self._explore_one_row(action, generator)
         return self.explore_actions(action, generator)
 
+    def rollout_policy(self, generator: torch.Generator) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+        """``act(observation, goal, explore=True, generator=generator)`` for the steps of one rollout: the same
+        actions and the same draws, call for call.
+
+        The per-episode loop acts on one row 5,000 times an iteration, between physics steps; this path
+        reaches :class:`SmallBatchActor` and the one-row branch of eq. 22 without ``act``'s per-call
+        checks and dispatch, with the normalisers' joined statistics read once, when it is made
+        (``python benchmarks/iteration.py`` prints the rollout both ways). Any other call goes to ``act``:
+        other shapes or dtypes, gradients enabled, or statistics changed in place since (``update_normalizer``,
+        ``load_state_dict``) or a changed clip. Make one per rollout, as the trainer does per chunk.
+        """
+        if generator is None:
+            raise ValueError("rollout_policy needs a torch.Generator for eq. 22's draws: pass generator=...")
+        general = partial(self.act, explore=True, generator=generator)
+        small = self._small_batch_actor
+        statistics = small._statistics() if small.usable else None
+        if statistics is None:
+            return general
+        loc, scale, clip = statistics
+        o, g = self.observation_normalizer, self.goal_normalizer
+        watched = (o.loc, o.scale, g.loc, g.scale)
+        versions = tuple(t._version for t in watched)
+        one_observation, one_goal = torch.Size([1, self.obs_dim]), torch.Size([1, self.goal_dim])
+        forward, explore, float32 = small.joined_forward, self._explore_one_row, torch.float32
+
+        def policy(observation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+            if (observation.shape != one_observation or goal.shape != one_goal or observation.dtype != float32
+                    or goal.dtype != float32 or not (observation.is_cpu and goal.is_cpu) or torch.is_grad_enabled()
+                    or o.clip != clip or g.clip != clip or tuple(t._version for t in watched) != versions):
+                return general(observation, goal)
+            return explore(forward(observation, goal, loc, scale, clip), generator)
+
+        return policy
+
     def explore_actions(self, action: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """Eq. 22 on the deterministic actions ``action`` ``[..., A]`` (changed in place): per row, with
         probability ``random_eps`` a uniform action, otherwise ``action + N(0, noise_std²)`` clipped to
@@ -902,8 +937,15 @@ class SmallBatchActor:
             x = torch.cat([((observation - o.loc) / o.scale).clamp(-o.clip, o.clip),
                            ((goal - g.loc) / g.scale).clamp(-g.clip, g.clip)], -1)
         else:  # the same elementwise operations on the joined input: 4 operations instead of 7
-            loc, scale, clip = statistics
-            x = torch.cat([observation, goal], -1).sub_(loc).div_(scale).clamp_(-clip, clip)
+            return self.joined_forward(observation, goal, *statistics)
+        return self._layers(x)
+
+    def joined_forward(self, observation: torch.Tensor, goal: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor,
+                       clip: float) -> torch.Tensor:
+        """The forward with the statistics :meth:`_statistics` joined (``loc``, ``scale``, ``clip``)."""
+        return self._layers(torch.cat([observation, goal], -1).sub_(loc).div_(scale).clamp_(-clip, clip))
+
+    def _layers(self, x: torch.Tensor) -> torch.Tensor:
         last = len(self.layers) - 1
         for i, (weight, bias) in enumerate(self.layers):
             x = nn.functional.linear(x, weight, bias)

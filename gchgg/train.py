@@ -29,7 +29,6 @@ import logging
 import math
 import os
 import time
-from functools import partial
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "disable")
@@ -111,7 +110,7 @@ class Trainer:
                 if self.env_steps < cfg.warmup_steps:
                     act = lambda obs, goal: self.agent.random_action(len(obs), p.streams["explore"])  # noqa: E731
                 else:
-                    act = partial(self.agent.act, explore=True, generator=p.streams["explore"])
+                    act = self.agent.rollout_policy(p.streams["explore"])  # = act(..., explore=True, ...)
                 rollout = collect(self.env, act, self.steps, start)
             self.env_steps += rollout.numel()
             stats.add_episodes(rollout, self.geometry, p.achieved_key)

@@ -504,6 +504,42 @@ def test_small_batch_actor_acts_as_the_module_bit_for_bit_after_updates_and_load
     assert not agent._small_batch_actor.takes(torch.randn(MIN_BATCH, 25), torch.randn(MIN_BATCH, 3))
 
 
+def test_rollout_policy_acts_as_act_with_exploration_call_for_call():
+    """The rollout's policy gives act(explore=True)'s actions and draws, also after the statistics or a clip
+    changed under it, for other shapes, and raises what act raises."""
+    from gchgg.agent import DDPGAgent, DDPGConfig
+
+    agent = DDPGAgent(25, 3, 3, DDPGConfig(), generator=torch.Generator().manual_seed(0))
+    data = torch.Generator().manual_seed(1)
+    agent.update_normalizer(torch.randn(500, 25, generator=data) * 3, torch.randn(500, 3, generator=data))
+    mine, theirs = torch.Generator().manual_seed(2), torch.Generator().manual_seed(2)
+    policy = agent.rollout_policy(mine)
+
+    def same(rows: int, times: int = 40) -> None:
+        for _ in range(times):
+            observation, goal = torch.randn(rows, 25, generator=data) * 4, torch.randn(rows, 3, generator=data)
+            with torch.inference_mode():
+                action = policy(observation, goal)
+                expected = agent.act(observation, goal, explore=True, generator=theirs)
+            assert torch.equal(action, expected)
+            assert torch.equal(mine.get_state(), theirs.get_state())
+
+    same(1)
+    same(5, times=3)  # more rows: act's path
+    agent.update_normalizer(torch.randn(500, 25, generator=data) + 2, torch.randn(500, 3, generator=data))
+    same(1)  # statistics changed in place after the policy was made
+    policy = agent.rollout_policy(mine)  # made anew: the joined statistics as they are now
+    same(1)
+    agent.observation_normalizer.clip = 0.5  # a clip changed after: most entries at it
+    same(1)
+    with pytest.raises(ValueError, match="observation"):
+        policy(torch.randn(1, 24), torch.randn(1, 3))
+    action = policy(torch.randn(1, 25, requires_grad=True), torch.randn(1, 3))  # gradients enabled: act's no_grad
+    assert not action.requires_grad
+    with pytest.raises(ValueError, match="generator"):
+        agent.rollout_policy(None)
+
+
 @pytest.mark.parametrize("random_eps", [0.3, 0.7, 0.0, 1.0])
 def test_exploring_one_row_is_eq_22_with_the_same_draws(random_eps):
     """act(explore=True) on one row (the per-episode loop's branch) gives what eq. 22 gives, draw for draw,

@@ -144,14 +144,18 @@ def test_gchgg_code_lambda_falls_within_the_iteration(tmp_path):
 
 def actor_versions(t: train.Trainer) -> list[int]:
     """Records, for every exploring call of the policy, which version of the actor's weights acted."""
-    versions, act = [], t.agent.act
+    versions, make = [], t.agent.rollout_policy  # the trainer explores through a rollout policy per chunk
 
-    def recording_act(observation, goal, explore=False, generator=None):
-        if explore:
+    def recording_rollout_policy(generator):
+        policy = make(generator)
+
+        def recording_policy(observation, goal):
             versions.append(hash(tuple(p.sum().item() for p in t.agent.actor.parameters())))
-        return act(observation, goal, explore=explore, generator=generator)
+            return policy(observation, goal)
 
-    t.agent.act = recording_act
+        return recording_policy
+
+    t.agent.rollout_policy = recording_rollout_policy
     return versions
 
 
