@@ -14,7 +14,8 @@ After the last algorithm's iterations its buffer is filled to 5,000 episodes and
 timed: seconds, bytes written and peak memory, against the full-buffer checkpoint written before
 December 2026. Where gchgg's rollout and update phases go follows (:func:`where_it_goes`): the rollout
 against the same episodes' physics replayed bare and the actor's calls alone, the update phase against
-its samples, updates and diagnostics each alone and with one draw before each update. gchgg is then
+its samples, updates and diagnostics each alone and with one draw before each update, and the
+iteration beside a second process evaluating against it paused, in alternating rounds. gchgg is then
 timed with C = 1, 5 and 50 chunks (C = 50 is the default, the
 original's per-episode loop; C = 1 collects all episodes with one policy, then runs all updates), one
 trainer per C and their iterations in alternating rounds, and the ratio C=50 / C=1 printed. Then
@@ -67,6 +68,7 @@ from gchgg import checkpoint  # noqa: E402
 from gchgg.evaluator import BackgroundEvaluator  # noqa: E402
 from gchgg.linear import MATMUL_BACKENDS, resolve_matmul, resolve_precision, use_onednn  # noqa: E402
 from gchgg.metrics import IterationStats  # noqa: E402
+from gchgg.parts import make_env  # noqa: E402
 from gchgg.rollout import collect  # noqa: E402
 from gchgg.train import BATCHES_AHEAD, CONF_DIR, Trainer  # noqa: E402
 
@@ -240,13 +242,15 @@ def algo_seconds(
 
 
 def where_it_goes(updates: int, threads: int, matmul: str = "auto", rounds: int = 4) -> None:
-    """Where a gchgg iteration's rollout and update phases spend their time beyond the floor's two parts:
-    :func:`rollout_split` and :func:`update_split` on one trainer (after one untimed iteration), the
+    """Where a gchgg iteration's rollout and update phases spend their time beyond the floor's two parts
+    (:func:`rollout_split` and :func:`update_split`), and what an evaluation in a second process costs the
+    iteration beside it (:func:`evaluation_beside`), on one trainer (after one untimed iteration), the
     median of ``rounds`` rounds of each part."""
     with tempfile.TemporaryDirectory() as run_dir:
         trainer = _ready_trainer("gchgg", updates, threads, 50, matmul, f"{run_dir}/gchgg")
         rollout_split(trainer, rounds)
         update_split(trainer, updates, rounds)
+        evaluation_beside(trainer, threads, rounds)
 
 
 def rollout_split(trainer: Trainer, rounds: int) -> None:
@@ -356,6 +360,37 @@ def update_split(trainer: Trainer, updates: int, rounds: int) -> None:
           f"{m['update']:.2f} s + their diagnostics {m['diagnostics']:.2f} s, each alone; together "
           f"{m['grouped']:.2f} s as the trainer orders them ({BATCHES_AHEAD} batches drawn, then their updates, "
           f"then their diagnostics), {m['one by one']:.2f} s with one draw before each update", flush=True)
+
+
+def evaluation_beside(trainer: Trainer, threads: int, rounds: int, episodes: int = 100) -> None:
+    """What an evaluation in a second process costs the iteration beside it, with the machine's drift
+    cancelled: one trainer's iterations alternately beside a worker evaluating the trainer's policy
+    (``episodes`` episodes at a time, one evaluation after another, as ``eval.background`` evaluates) and
+    with that worker paused (SIGSTOP), each first in turn, ``rounds`` rounds; the median of the rounds'
+    ratios of the iteration's seconds (its four phases) beside the worker to without it."""
+    build = partial(make_env, trainer.cfg.env.name, episodes, 0, {"threshold": trainer.cfg.env.threshold}, 0.0, 0)
+    worker = BackgroundEvaluator(build, trainer.steps, threads, trainer.agent.matmul)
+    policy = trainer.agent.policy_state()
+    for _ in range(3 * rounds + 2):  # queued: more than the rounds' iterations beside the worker last
+        worker.submit(0, policy, None)
+    seconds: dict[str, list[float]] = {"beside": [], "paused": []}
+    try:
+        while worker.in_flight and not worker.results():  # the worker has built its env and evaluated once
+            time.sleep(0.05)
+        for turn in range(rounds):
+            for mode in (("beside", "paused") if turn % 2 == 0 else ("paused", "beside")):
+                os.kill(worker.pid, signal.SIGCONT if mode == "beside" else signal.SIGSTOP)
+                row = trainer.iteration_step()
+                seconds[mode].append(sum(row[f"seconds_{p}"] for p in PHASES))
+    finally:
+        os.kill(worker.pid, signal.SIGCONT)
+        os.kill(worker.pid, signal.SIGTERM)  # its queued evaluations are not needed
+        worker.close()
+    ratios = [b / p for b, p in zip(seconds["beside"], seconds["paused"], strict=True)]
+    print(f"what an evaluation beside costs an iteration: {statistics.median(seconds['beside']):.2f} s beside a "
+          f"second process evaluating {episodes} episodes at a time, {statistics.median(seconds['paused']):.2f} s with "
+          f"it paused; beside / paused = {statistics.median(ratios):.2f} (the median of {rounds} alternating rounds' "
+          f"ratios: {', '.join(f'{r:.2f}' for r in ratios)})", flush=True)
 
 
 def chunk_seconds(
