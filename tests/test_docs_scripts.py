@@ -49,3 +49,15 @@ def test_fig6_settings_prints_each_settings_lambda_and_share(runs):
     out = script("fig6_settings.py", runs["gchgg"], "--iteration", 2, "--samples", 2)
     for setting in ("| eta | 500 |", "| sigma | 0.37 |", "| tradeoff | exponential |", "| metric | euclidean |"):
         assert setting in out
+
+
+def test_iteration_rounds_pools_the_committed_runs_and_refuses_other_files(tmp_path):
+    """docs/iteration_rounds.py reads each run's rounds from benchmarks/iteration.py's output and pools them."""
+    out = script("iteration_rounds.py")
+    assert "4221258.txt: median 1.01 of 5 rounds (1.01, 0.99, 0.99, 1.01, 1.01)" in out
+    assert "pooled: everything on / fp32 floor = 1.01 [" in out and "median of 15 rounds of 3 runs" in out
+    other = tmp_path / "other.txt"
+    other.write_text("floor: 8.00 s\n")
+    done = subprocess.run([sys.executable, str(REPO / "docs" / "iteration_rounds.py"), str(other)],
+                          capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert done.returncode != 0 and "no 'everything on / fp32 floor' line" in done.stderr
