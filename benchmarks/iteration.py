@@ -382,6 +382,9 @@ def evaluation_beside(trainer: Trainer, threads: int, rounds: int, episodes: int
                 os.kill(worker.pid, signal.SIGCONT if mode == "beside" else signal.SIGSTOP)
                 row = trainer.iteration_step()
                 seconds[mode].append(sum(row[f"seconds_{p}"] for p in PHASES))
+        worker.results()  # those done: what is left must still be in flight, or the worker idled beside some rounds
+        if not worker.in_flight:
+            raise RuntimeError("the evaluating worker ran out of evaluations before the last round: queue more")
     finally:
         os.kill(worker.pid, signal.SIGCONT)
         os.kill(worker.pid, signal.SIGTERM)  # its queued evaluations are not needed
