@@ -686,16 +686,14 @@ class DDPGAgent:
         if statistics is None:
             return general
         loc, scale, clip = statistics
-        o, g = self.observation_normalizer, self.goal_normalizer
-        watched = (o.loc, o.scale, g.loc, g.scale)
-        versions = tuple(t._version for t in watched)
+        stamp, joined_at = small.stamp, small.stamp()  # the statistics' state they were joined in
         one_observation, one_goal = torch.Size([1, self.obs_dim]), torch.Size([1, self.goal_dim])
         forward, explore, float32 = small.joined_forward, self._explore_one_row, torch.float32
 
         def policy(observation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
             if (observation.shape != one_observation or goal.shape != one_goal or observation.dtype != float32
                     or goal.dtype != float32 or not (observation.is_cpu and goal.is_cpu) or torch.is_grad_enabled()
-                    or o.clip != clip or g.clip != clip or tuple(t._version for t in watched) != versions):
+                    or stamp() != joined_at):
                 return general(observation, goal)
             return explore(forward(observation, goal, loc, scale, clip), generator)
 
@@ -932,13 +930,11 @@ class SmallBatchActor:
 
     def __call__(self, observation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         statistics = self._statistics()
-        if statistics is None:
-            o, g = self.observation_normalizer, self.goal_normalizer
-            x = torch.cat([((observation - o.loc) / o.scale).clamp(-o.clip, o.clip),
-                           ((goal - g.loc) / g.scale).clamp(-g.clip, g.clip)], -1)
-        else:  # the same elementwise operations on the joined input: 4 operations instead of 7
+        if statistics is not None:  # the same elementwise operations on the joined input: 4 operations instead of 7
             return self.joined_forward(observation, goal, *statistics)
-        return self._layers(x)
+        o, g = self.observation_normalizer, self.goal_normalizer
+        return self._layers(torch.cat([((observation - o.loc) / o.scale).clamp(-o.clip, o.clip),
+                                       ((goal - g.loc) / g.scale).clamp(-g.clip, g.clip)], -1))
 
     def joined_forward(self, observation: torch.Tensor, goal: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor,
                        clip: float) -> torch.Tensor:
@@ -953,6 +949,13 @@ class SmallBatchActor:
                 x.relu_()  # in place on the product's fresh output: the same values
         return x.tanh_()
 
+    def stamp(self) -> tuple:
+        """The normalisers' statistics as they are now: each tensor's storage and version (``update`` and
+        ``load_state_dict`` change them in place, which bumps the version) and the two clips. Joined
+        statistics (:meth:`_statistics`) hold while it is unchanged."""
+        o, g = self.observation_normalizer, self.goal_normalizer
+        return (*((t.data_ptr(), t._version) for t in (o.loc, o.scale, g.loc, g.scale)), o.clip, g.clip)
+
     def _statistics(self) -> tuple[torch.Tensor, torch.Tensor, float] | None:
         """The two normalisers' ``loc`` and ``scale`` joined, and their clip, joined again after either changed
         (``update`` and ``load_state_dict`` change them in place, which bumps their versions, or a clip was
@@ -960,7 +963,7 @@ class SmallBatchActor:
         statistics not float32)."""
         o, g = self.observation_normalizer, self.goal_normalizer
         parts = (o.loc, o.scale, g.loc, g.scale)
-        stamp = (*((t.data_ptr(), t._version) for t in parts), o.clip, g.clip)
+        stamp = self.stamp()
         if self._joined is None or self._joined[0] != stamp:
             usable = o.clip == g.clip and all(t.dtype == torch.float32 for t in parts)
             joined = (torch.cat([o.loc, g.loc]), torch.cat([o.scale, g.scale]), o.clip) if usable else None
