@@ -5,9 +5,9 @@
 Reads the line ``everything on / fp32 floor = X (...; the median of N rounds' ratios: a, b, ...)`` from each
 given output of ``benchmarks/iteration.py`` (default: the runs of the library code of d4117cc in
 ``docs/benchmark_logs/``) and prints each run's median and the rounds' pooled median with a 95 % percentile
-bootstrap interval over the rounds (10,000 resamples, seed 0). The rounds of one run are not independent
-draws (they share a trainer and the minutes they ran in), so the interval is a lower bound on the
-uncertainty, not a test.
+bootstrap interval over the rounds (:func:`gchgg.stats.median_interval`, 10,000 resamples, seed 0). The
+rounds of one run are not independent draws (they share a trainer and the minutes they ran in), so the
+interval is a lower bound on the uncertainty, not a test.
 """
 
 from __future__ import annotations
@@ -19,8 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from gchgg.stats import median_interval
+
 LOGS = Path(__file__).resolve().parent / "benchmark_logs"
 SAME_CODE = ("d4117cc.txt", "f88d517-replication.txt", "4221258.txt")  # the library code of d4117cc
+REPS = 10_000  # bootstrap resamples (generator seeded 0: gchgg.stats' default)
 LINE = re.compile(r"everything on / fp32 floor = ([0-9.]+) .*rounds' ratios: ([0-9., ]+)\)")
 
 
@@ -31,14 +34,6 @@ def rounds_of(path: Path) -> list[float]:
         if match:
             return [float(x) for x in match.group(2).split(",")]
     raise ValueError(f"{path}: no 'everything on / fp32 floor' line (is it benchmarks/iteration.py's output?)")
-
-
-def median_interval(values: np.ndarray, reps: int = 10_000, seed: int = 0) -> tuple[float, float, float]:
-    """The median of ``values`` and the 2.5 and 97.5 percentiles of the medians of ``reps`` resamples."""
-    rng = np.random.default_rng(seed)
-    medians = np.median(values[rng.integers(0, len(values), (reps, len(values)))], axis=1)
-    low, high = np.percentile(medians, [2.5, 97.5])
-    return float(np.median(values)), float(low), float(high)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -52,8 +47,8 @@ def main(argv: list[str] | None = None) -> None:
         pooled += rounds
         listed = ", ".join(f"{r:.2f}" for r in rounds)
         print(f"{path.name}: median {np.median(rounds):.2f} of {len(rounds)} rounds ({listed})")
-    median, low, high = median_interval(np.array(pooled))
-    print(f"pooled: everything on / fp32 floor = {median:.2f} [{low:.2f}, {high:.2f}] (median of {len(pooled)} rounds "
+    pooled_median = median_interval(pooled, reps=REPS)
+    print(f"pooled: everything on / fp32 floor = {pooled_median.format()} (median of {len(pooled)} rounds "
           f"of {len(args.logs)} runs, 95 % bootstrap interval over the rounds; target <= 1.0)")
 
 

@@ -51,7 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Estimate", "average_poi_interval", "bootstrap_indices", "iqm", "iqm_interval",
+__all__ = ["Estimate", "average_poi_interval", "bootstrap_indices", "iqm", "iqm_interval", "median_interval",
            "paired_difference_interval", "paired_tests", "poi_interval", "probability_of_improvement",
            "sequential_alpha", "unpaired_difference_interval"]
 
@@ -148,6 +148,22 @@ def iqm_interval(scores, *, reps: int = REPS, alpha: float = ALPHA, rng: np.rand
     samples = _resample(matrix, bootstrap_indices(runs, tasks, reps, _rng(rng)))
     low, high = _percentiles(_iqm_last_axis(samples.reshape(reps, runs * tasks)), alpha)
     return Estimate(iqm(matrix), low, high, runs)
+
+
+def median_interval(scores, *, reps: int = REPS, alpha: float = ALPHA,
+                    rng: np.random.Generator | None = None) -> Estimate:
+    """The median of ``scores`` (``[runs]``, or ``[runs, tasks]`` pooled) and its stratified-bootstrap ``1 − alpha``
+    interval, for figures whose runs report medians (``docs/iteration_rounds.py``: a benchmark's rounds).
+
+    >>> median_interval([1.0, 1.0, 1.0]).format()
+    '1.00 [1.00, 1.00]'
+    """
+    _check(reps, alpha)
+    matrix = _matrix(scores, "median_interval")
+    runs, tasks = matrix.shape
+    samples = _resample(matrix, bootstrap_indices(runs, tasks, reps, _rng(rng)))
+    low, high = _percentiles(np.median(samples.reshape(reps, runs * tasks), axis=-1), alpha)
+    return Estimate(float(np.median(matrix)), low, high, runs)
 
 
 def _censored(mask, shape: tuple[int, int], name: str) -> np.ndarray:

@@ -226,3 +226,18 @@ def test_one_look_keeps_the_level_close_looks_cost_less_and_bad_looks_are_errors
     for bad in ([], [3, 3], [0, 1], [4, 3]):
         with pytest.raises(ValueError, match=r"looks=.*allowed a non-empty increasing list of run counts"):
             stats.sequential_alpha(bad)
+
+
+def test_the_median_interval_is_the_percentiles_of_a_resampling_loop():
+    """median_interval = a loop over resamples of numpy's median on the same draws; the median and its checks."""
+    scores = np.array([1.00, 0.96, 1.01, 1.00, 1.05, 1.03, 1.02])
+    estimate = stats.median_interval(scores, reps=300, rng=np.random.default_rng(3))
+    draws = np.random.default_rng(3).integers(0, len(scores), size=(300, len(scores), 1))
+    medians = [np.median(scores[draws[r, :, 0]]) for r in range(300)]
+    assert (estimate.low, estimate.high) == pytest.approx(tuple(np.percentile(medians, [2.5, 97.5])))
+    assert estimate.point == 1.01 and estimate.runs == len(scores)
+    assert stats.median_interval(scores) == stats.median_interval(scores)  # seeded 0 by default
+    with pytest.raises(ValueError, match="no runs"):
+        stats.median_interval([])
+    with pytest.raises(ValueError, match="reps=0"):
+        stats.median_interval([1.0], reps=0)
