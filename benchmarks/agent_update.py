@@ -25,7 +25,9 @@ Last, the oneDNN update in float32 and in bfloat16, each by autograd and with ``
 in rotating rounds beside the bare float32 update (``fused / bare fp32``: below 1 is an update faster
 than the fp32 floor's); then the training default's update with its optimisers stepped by
 :func:`gchgg.adam_step.adam_step` against the same with ``Adam.step``, and whether the two stay equal;
-``--profile`` prints both updates' top operators.
+then the same update (the training default's, ``gradients=auto``: eager) against a twin with
+``gradients=compiled`` (:class:`gchgg.fused_update.FusedDDPGUpdate` compiled by ``torch.compile``), their
+agreement on one fixed batch and their drift; ``--profile`` prints both updates' top operators.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from __future__ import annotations
 import argparse
 import copy
 import os
+import shutil
 import statistics
 import sys
 import time
@@ -197,6 +200,7 @@ def main() -> None:
     bf16_update(onednn, batches, args.rounds, args.updates)
     fused_onednn(onednn, bare, batches, plain, args.rounds, args.updates)
     adam_steps(onednn, batches, args.rounds, args.updates)
+    compiled_gradients(onednn, batches, args.rounds, args.updates)
     if args.compile:
         compiled_update(agent, batches, args.rounds, args.updates)
     act_one(onednn, args.rounds)
@@ -346,6 +350,44 @@ def adam_steps(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
     print(f"Adam stepped by gchgg.adam_step ({direct.precision}, gradients={direct.gradients}): "
           f"{statistics.median(times[0]) * 1e3:.3f} ms/update against {statistics.median(times[1]) * 1e3:.3f} with "
           f"Adam.step: {ratio:.3f}; networks and optimiser states equal after {rounds * updates} updates: {same}")
+
+
+def compiled_gradients(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
+    """The training default's update (``gradients=auto``: the fused update, eager) against a twin with
+    ``gradients=compiled`` (the same update compiled by ``torch.compile``): their losses and gradients on one
+    fixed batch from the same weights, relative to each value's largest entry (the compiled twin's first
+    update, which compiles, timed); then their updates in alternating rounds, and how far the twins' actors
+    drift apart over them."""
+    if shutil.which("c++") is None and shutil.which("g++") is None:
+        print("gradients=compiled: skipped (torch.compile's Inductor needs a C++ compiler, and none is on PATH)")
+        return
+    twins = {}
+    for gradients in ("auto", "compiled"):
+        agent = DDPGAgent(onednn.obs_dim, onednn.goal_dim, onednn.action_dim, precision="auto", gradients=gradients)
+        agent.load_state_dict(copy.deepcopy(onednn.state_dict()))
+        twins[gradients] = agent
+    eager, compiled = twins.values()
+    values, seconds = {}, {}
+    for name, agent in twins.items():  # one fixed batch, from the same weights; nothing steps
+        inputs = agent.loss_module.inputs(batches[0])
+        start = time.perf_counter()
+        with products_in(agent.precision):
+            out = agent._fused.forward(*inputs)  # the compiled twin's first: compiles
+            agent._fused.backward()
+        seconds[name] = time.perf_counter() - start
+        values[name] = (out[:2], [p.grad.clone() for p in (*agent.actor.parameters(), *agent.critic.parameters())])
+    (eager_losses, eager_grads), (compiled_losses, compiled_grads) = values.values()
+    loss_gap = max(((x - y).abs() / x.abs()).item() for x, y in zip(eager_losses, compiled_losses, strict=True))
+    grad_gap = max(((x - y).abs().max() / x.abs().max().clamp_min(1e-30)).item()
+                   for x, y in zip(eager_grads, compiled_grads, strict=True))  # fmt: skip
+    times = _alternate(eager, compiled, batches, rounds, updates)
+    weights, actions = _drift(eager, compiled, batches[1])
+    ratio = statistics.median(b / a for a, b in zip(*times, strict=True))
+    print(f"gradients=compiled ({compiled.precision}): {seconds['compiled']:.1f} s for the first update (it compiles); "
+          f"then {statistics.median(times[1]) * 1e3:.3f} ms/update against {statistics.median(times[0]) * 1e3:.3f} "
+          f"with gradients={eager.gradients}: compiled / {eager.gradients} {ratio:.3f}")
+    print(f"  one fixed batch: losses agree to {loss_gap:.1e}, gradients to {grad_gap:.1e} of their largest entry; "
+          f"after {rounds * updates + 1} updates actor weights / actions apart by {weights:.2g} / {actions:.2g}")
 
 
 def _flat(state) -> list[torch.Tensor]:

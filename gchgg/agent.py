@@ -260,13 +260,15 @@ def make_ddpg_networks(
     )
 
 
-GRADIENTS = ("auto", "fused", "autograd")
+GRADIENTS = ("auto", "fused", "compiled", "autograd")
 """How :meth:`DDPGAgent.update` computes the gradients (the ``gradients`` setting): ``autograd`` differentiates
 :class:`HindsightDDPGLoss`; ``fused`` computes the same losses and gradients by hand
 (:class:`gchgg.fused_update.FusedDDPGUpdate`: bit for bit autograd's, on torch's BLAS and on oneDNN in
 float32 or bfloat16, faster by the autograd overhead and conversions it skips,
-``benchmarks/agent_update.py``); ``auto``: ``fused`` where it applies (the ReLU MLPs
-:func:`make_ddpg_networks` builds), else ``autograd``."""
+``benchmarks/agent_update.py``); ``compiled``: that update compiled by ``torch.compile`` (TorchInductor,
+which needs a C++ compiler), equal to it to float32 rounding and faster by the Python and element-wise
+passes it removes; ``auto``: ``fused`` where it applies (the ReLU MLPs :func:`make_ddpg_networks` builds),
+else ``autograd``."""
 
 
 @dataclass(frozen=True)
@@ -605,7 +607,8 @@ class DDPGAgent:
         self.goal_normalizer: RunningNormalizer = self.loss_module.actor.goal_normalizer
         self._small_batch_actor = SmallBatchActor(self.actor)  # the rollout's one-episode steps
         self._fused = self._fused_update(gradients)
-        self.gradients = "autograd" if self._fused is None else "fused"  # the setting resolved
+        # the setting resolved
+        self.gradients = "autograd" if self._fused is None else "compiled" if self._fused.compiled else "fused"
         self.num_updates = 0
 
     def _fused_update(self, gradients: str) -> FusedDDPGUpdate | None:
@@ -616,10 +619,10 @@ class DDPGAgent:
             return None
         reason = unsupported(self.loss_module)
         if reason is None:
-            return FusedDDPGUpdate(self.loss_module, precision=self.precision)
-        if gradients == "fused":
-            raise ValueError(f"gradients='fused' differentiates ReLU MLPs of float32 linear layers, but {reason}; "
-                             "use gradients=auto or autograd")
+            return FusedDDPGUpdate(self.loss_module, precision=self.precision, compiled=gradients == "compiled")
+        if gradients in ("fused", "compiled"):
+            raise ValueError(f"gradients={gradients!r} differentiates ReLU MLPs of float32 linear layers, but "
+                             f"{reason}; use gradients=auto or autograd")
         return None
 
     # -- acting ---------------------------------------------------------------------------------
@@ -829,7 +832,7 @@ class DDPGAgent:
                 "finite; check the batch for NaN/inf (observations, goals, rewards) and the learning rates"
             )
         if self._fused is not None:
-            self._fused.backward()  # overwrites every .grad
+            self._fused.backward()  # replaces every .grad
         else:
             self.actor_optimizer.zero_grad(set_to_none=True)
             self.critic_optimizer.zero_grad(set_to_none=True)

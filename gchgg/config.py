@@ -313,7 +313,7 @@ class RunConfig:
     threads: int = 1  # torch CPU threads (1: fastest for these small nets on a shared machine; 0: torch's)
     matmul: str = "auto"  # the wide layers' products: auto (oneDNN for bfloat16, or where faster) | onednn | default
     precision: str = "auto"  # their dtype in updates: auto (bfloat16 where native) | float32 | bfloat16
-    gradients: str = "auto"  # of the updates: auto (by hand wherever the networks allow) | fused | autograd
+    gradients: str = "auto"  # of the updates: auto (by hand wherever the networks allow) | fused | compiled | autograd
     subnormals: str = "flush"  # in updates: flush (to zero: fast, same networks; gchgg.subnormal) | keep
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)

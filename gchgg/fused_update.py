@@ -10,9 +10,13 @@ computes the same losses and gradients with the products written out:
 - the critic loss's backward writes the critic's weight gradients; the actor loss's backward
   through the critic computes input gradients only and keeps the action's (the critic's weights
   get no gradient from it, as :meth:`HindsightDDPGLoss.actor_loss` says);
-- each weight gradient is one ``torch.mm`` into the parameter's ``.grad`` (overwritten, not
+- each weight gradient is one ``torch.mm``, set as the parameter's ``.grad`` (replaced, not
   accumulated); the ReLU and tanh backwards are autograd's own kernels (``threshold_backward``,
   ``tanh_backward``).
+
+The arithmetic is one function of tensors (:func:`_losses_and_gradients`); ``compiled=True`` runs it
+under ``torch.compile`` (the ``gradients=compiled`` setting), equal to the eager update to float32
+rounding (:class:`FusedDDPGUpdate`).
 
 Every product is one autograd computes, of the same shapes, so the losses and gradients equal
 autograd's bit for bit (``tests/test_fused_update.py``, batch sizes 5 to 256; the recorded tiny runs of
@@ -32,6 +36,8 @@ than once per product, and lets oneDNN apply each hidden ReLU inside its product
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import torch
@@ -75,49 +81,30 @@ def unsupported(loss: HindsightDDPGLoss) -> str | None:
 class _Products:
     """The products of one network's layers in one update, as its layers compute them under autograd.
 
-    A :class:`OneDNNLinear` layer given a batch of at least :data:`MIN_BATCH` rows multiplies on oneDNN
-    in the products' dtype (operands rounded to it, results in it); every other layer multiplies in
-    float32 on torch's BLAS (``addmm``/``mm``). A layer's weight is rounded once per update (a target
-    network's once after it moved) and serves the forward passes and the backward; a hidden oneDNN
-    layer's ReLU is applied by oneDNN before it rounds the product (the same values: rounding is
-    monotone and keeps 0). Activations stay in the dtype they were computed in: ReLU and its backward
-    commute with rounding to bfloat16, so keeping a bfloat16 result instead of its float32 copy (what
-    autograd's layers return) changes no value and saves two conversions per layer.
+    The layers come as tensors: ``weights[i]`` in the products' dtype where ``onednn[i]`` (the layer is a
+    :class:`OneDNNLinear` and the batch has at least :data:`MIN_BATCH` rows: it multiplies on oneDNN,
+    operands rounded to that dtype, results in it), else float32 (``addmm``/``mm`` on torch's BLAS); the
+    caller rounds each weight, once per update (:meth:`FusedDDPGUpdate._weights`) or inside the compiled
+    update. A hidden oneDNN layer's ReLU is applied by oneDNN before it rounds the product (the same
+    values: rounding is monotone and keeps 0). Activations stay in the dtype they were computed in: ReLU
+    and its backward commute with rounding to bfloat16, so keeping a bfloat16 result instead of its
+    float32 copy (what autograd's layers return) changes no value and saves two conversions per layer.
     """
 
-    def __init__(self, layers: list[nn.Linear], dtype: torch.dtype, rounded: dict | None = None) -> None:
-        self.layers = layers
-        self.dtype = dtype
-        # layer index -> (weight, its data pointer and version, it in the products' dtype): kept across
-        # updates when given (a target network's, moved every n-th update), so an unchanged weight is not
-        # rounded again; the in-place changes such a weight sees (lerp_, load_state_dict's copy_) bump its
-        # version. Not for weights a fused optimiser steps: its kernel leaves the version as it was.
-        self._rounded = {} if rounded is None else rounded
-
-    def onednn(self, i: int, x: torch.Tensor) -> bool:
-        """Whether layer ``i`` computes its product with ``x`` on oneDNN (as :class:`OneDNNLinear` would)."""
-        return type(self.layers[i]) is OneDNNLinear and x.shape[0] >= MIN_BATCH
-
-    def weight(self, i: int) -> torch.Tensor:
-        """Layer ``i``'s weight in the products' dtype, rounded again only after the weight changed."""
-        weight = self.layers[i].weight
-        stamp = (weight.data_ptr(), weight._version)
-        kept = self._rounded.get(i)
-        if kept is None or kept[0] is not weight or kept[1] != stamp:  # another tensor, or changed
-            kept = self._rounded[i] = (weight, stamp, weight.detach().to(self.dtype))
-        return kept[2]
+    def __init__(self, weights: list[torch.Tensor], biases: list[torch.Tensor], onednn: tuple[bool, ...]) -> None:
+        self.weights, self.biases, self.onednn = weights, biases, onednn
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         """``[x_0, h_1, …, h_{L-1}, y]``: each layer's input as its product used it (ReLU outputs after
         the first) and the last layer's float32 output."""
-        outputs, last = [], len(self.layers) - 1
-        for i, layer in enumerate(self.layers):
-            if self.onednn(i, x):
-                x = x.to(self.dtype)
-                y = onednn_linear(x, self.weight(i), layer.bias, relu=i < last)  # the ReLU fused into the product
+        outputs, last = [], len(self.weights) - 1
+        for i, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
+            if self.onednn[i]:
+                x = x.to(weight.dtype)
+                y = onednn_linear(x, weight, bias, relu=i < last)  # the ReLU fused into the product
             else:
                 x = x.float()
-                y = torch.addmm(layer.bias, x, layer.weight.t())
+                y = torch.addmm(bias, x, weight.t())
                 if i < last:
                     y.relu_()
             outputs.append(x)
@@ -125,57 +112,124 @@ class _Products:
         outputs.append(x)
         return outputs
 
-    def input_gradient(self, i: int, x: torch.Tensor, grad_y: torch.Tensor) -> torch.Tensor:
-        """``∂y·W`` of layer ``i`` (whose product took ``x``), in its product's dtype."""
-        if self.onednn(i, x):
-            return onednn_mm(grad_y.to(self.dtype), self.weight(i))
-        return torch.mm(grad_y.float(), self.layers[i].weight)
+    def input_gradient(self, i: int, grad_y: torch.Tensor) -> torch.Tensor:
+        """``∂y·W`` of layer ``i``, in its product's dtype."""
+        weight = self.weights[i]
+        if self.onednn[i]:
+            return onednn_mm(grad_y.to(weight.dtype), weight)
+        return torch.mm(grad_y.float(), weight)
 
-    def weight_gradients(self, i: int, x: torch.Tensor, grad_y: torch.Tensor) -> None:
-        """Write layer ``i``'s ``.grad`` of weight (``∂yᵀ·x``) and bias (``Σ ∂y``)."""
-        layer = self.layers[i]
-        if self.onednn(i, x):
-            grad_y = grad_y.to(self.dtype)
-            _grad(layer.weight).copy_(onednn_mm(grad_y.t(), x))
-            torch.sum(grad_y, 0, dtype=torch.float32, out=_grad(layer.bias))  # = grad_y.float().sum(0), one pass
-        else:
-            grad_y = grad_y.float()
-            torch.mm(grad_y.t(), x, out=_grad(layer.weight))
-            torch.sum(grad_y, 0, out=_grad(layer.bias))
+    def weight_gradients(self, i: int, x: torch.Tensor, grad_y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Layer ``i``'s float32 gradients of weight (``∂yᵀ·x``) and bias (``Σ ∂y``); its product took ``x``."""
+        if self.onednn[i]:
+            grad_y = grad_y.to(self.weights[i].dtype)
+            return onednn_mm(grad_y.t(), x).float(), torch.sum(grad_y, 0, dtype=torch.float32)
+        grad_y = grad_y.float()
+        return torch.mm(grad_y.t(), x), torch.sum(grad_y, 0)
 
     def backward_input(self, outputs: list[torch.Tensor], grad_y: torch.Tensor) -> torch.Tensor:
         """The float32 gradient of the first layer's input from the output gradient ``grad_y``; no weight
         gradients."""
         grad = grad_y
-        for i in range(len(self.layers) - 1, 0, -1):  # ∂x = ∂y·W, through the ReLU whose output is this layer's input
-            grad = torch.ops.aten.threshold_backward(self.input_gradient(i, outputs[i], grad), outputs[i], 0)
-        return self.input_gradient(0, outputs[0], grad).float()
+        for i in range(len(self.weights) - 1, 0, -1):  # ∂x = ∂y·W, through the ReLU whose output is this layer's input
+            grad = torch.ops.aten.threshold_backward(self.input_gradient(i, grad), outputs[i], 0)
+        return self.input_gradient(0, grad).float()
 
-    def backward_weights(self, outputs: list[torch.Tensor], grad_y: torch.Tensor) -> None:
-        """Write every layer's weight and bias gradients from the output gradient ``grad_y`` (the first
-        layer's input gradient is not computed: nothing needs it)."""
-        grad = grad_y
-        for i in range(len(self.layers) - 1, -1, -1):
-            self.weight_gradients(i, outputs[i], grad)
+    def backward_weights(self, outputs: list[torch.Tensor], grad_y: torch.Tensor) -> list[torch.Tensor]:
+        """Every layer's weight and bias gradients from the output gradient ``grad_y``, in the order of the
+        network's parameters (weight, bias, layer by layer); the first layer's input gradient is not computed."""
+        grads, grad = [], grad_y
+        for i in range(len(self.weights) - 1, -1, -1):
+            grads[:0] = self.weight_gradients(i, outputs[i], grad)
             if i > 0:
-                grad = torch.ops.aten.threshold_backward(self.input_gradient(i, outputs[i], grad), outputs[i], 0)
+                grad = torch.ops.aten.threshold_backward(self.input_gradient(i, grad), outputs[i], 0)
+        return grads
 
 
-def _grad(parameter: nn.Parameter) -> torch.Tensor:
-    """``parameter.grad``, allocated where it is missing, to be overwritten."""
-    if parameter.grad is None:
-        parameter.grad = torch.empty_like(parameter)
-    return parameter.grad
+def _losses_and_gradients(
+    products: dict[str, _Products],
+    x: torch.Tensor,
+    next_x: torch.Tensor,
+    action: torch.Tensor,
+    reward: torch.Tensor,
+    gamma: float,
+    return_range: tuple[float, float] | None,
+    action_l2: float,
+) -> tuple[torch.Tensor, ...]:
+    """The update's arithmetic: :meth:`HindsightDDPGLoss.losses`' values and the online networks' gradients
+    from the normalised inputs ``x = s‖g`` and ``next_x = s'‖g``: ``(loss_actor, loss_value, pred_value [B, 1],
+    target_value [B, 1], the critic's gradients, the actor's gradients)``, the gradients in each network's
+    parameter order. The same function runs eagerly and under ``torch.compile`` (:class:`FusedDDPGUpdate`)."""
+    next_action = products["target_actor"].forward(next_x)[-1].tanh_()
+    next_value = products["target_critic"].forward(torch.cat([next_x, next_action], -1))[-1]
+    if return_range is not None:
+        next_value = next_value.clamp_(*return_range)
+    target_value = reward + gamma * next_value
+
+    actor, critic = products["actor"], products["critic"]
+    actor_outputs = actor.forward(x)
+    policy_action = actor_outputs[-1].tanh()
+    value_outputs = critic.forward(torch.cat([x, action], -1))  # Q(s‖g, a)
+    policy_outputs = critic.forward(torch.cat([x, policy_action], -1))  # Q(s‖g, π(s‖g))
+    pred_value, policy_value = value_outputs[-1], policy_outputs[-1]
+    error = pred_value - target_value
+    loss_value = error.square().mean()
+    loss_actor = -policy_value.mean()
+    if action_l2:
+        loss_actor = loss_actor + action_l2 * policy_action.square().mean()
+
+    # the critic loss: ∂ mean((Q − y)²) / ∂Q into the critic's weights
+    critic_grads = critic.backward_weights(value_outputs, error * (2.0 / error.numel()))
+    # the actor loss: ∂(−mean Q(s‖g, π)) / ∂Q back to the action only (the critic's weights are constants)
+    grad_q = torch.full_like(policy_value, -1.0 / policy_value.numel())
+    grad_action = critic.backward_input(policy_outputs, grad_q)[:, -policy_action.shape[-1]:]
+    if action_l2:
+        # ∂(l2·mean(a²))/∂a in autograd's order and rounding: (float32(l2) / n) · 2a
+        scale = torch.tensor(action_l2, dtype=grad_action.dtype) / policy_action.numel()
+        grad_action = grad_action + (2 * policy_action) * scale
+    grad_pre_tanh = torch.ops.aten.tanh_backward(grad_action, policy_action)  # ∂y·(1 − y²), as autograd
+    actor_grads = actor.backward_weights(actor_outputs, grad_pre_tanh)
+    return loss_actor, loss_value, pred_value, target_value, critic_grads, actor_grads
+
+
+def _compiled_arithmetic(
+    weights: dict[str, list[torch.Tensor]],
+    biases: dict[str, list[torch.Tensor]],
+    onednn: dict[str, tuple[bool, ...]],
+    dtype: torch.dtype,
+    *inputs,
+) -> tuple[torch.Tensor, ...]:
+    """:func:`_losses_and_gradients` from the float32 weights, each oneDNN layer's rounded to ``dtype`` first:
+    what :class:`FusedDDPGUpdate` hands to ``torch.compile`` (tensors and constants only, so a new agent of
+    the same sizes reuses the compiled code)."""
+    products = {name: _Products([w.to(dtype) if on else w for w, on in zip(weights[name], onednn[name], strict=True)],
+                                biases[name], onednn[name])
+                for name in weights}  # fmt: skip
+    return _losses_and_gradients(products, *inputs)
+
+
+@functools.cache
+def _compiled() -> Callable:
+    """:func:`_compiled_arithmetic` compiled by TorchInductor (built once per process, per input shapes)."""
+    return torch.compile(_compiled_arithmetic, dynamic=False)
 
 
 class FusedDDPGUpdate:
     """The losses of ``loss`` and the gradients of its online actor and critic, without autograd.
 
     Call :meth:`forward` with a batch's tensors (what :meth:`HindsightDDPGLoss.losses` takes); it returns
-    what that returns, as tensors without a graph. Then :meth:`backward` writes every parameter's
-    ``.grad`` of the online actor and critic (overwriting it), as ``(loss_actor + loss_value).backward()``
+    what that returns, as tensors without a graph. Then :meth:`backward` sets every parameter's
+    ``.grad`` of the online actor and critic (replacing it), as ``(loss_actor + loss_value).backward()``
     after zeroed gradients would; the optimisers step as usual. Target networks, normalisers and
     constants are read from ``loss`` at every call, so it follows their updates and a loaded state.
+
+    With ``compiled=True`` the arithmetic (:func:`_losses_and_gradients`, every layer's weight rounded
+    inside it) runs compiled by ``torch.compile`` (TorchInductor, which needs a C++ compiler): the
+    element-wise work fused into a few loops and the Python between the kernels gone. Its products are
+    the same oneDNN and BLAS calls, but Inductor sums the bias gradients and the losses' means in its own
+    order and computes some thin products its own way, so losses and gradients agree with the eager
+    update's to float32 rounding, not bit for bit (``tests/test_fused_update.py``). The first update
+    of each batch size compiles (seconds; cached on disk across runs).
 
     Args:
         loss: the loss module; its networks must pass :func:`unsupported`.
@@ -183,13 +237,14 @@ class FusedDDPGUpdate:
             ``"bfloat16"`` (resolved: what :func:`gchgg.linear.resolve_precision` returns and the autograd
             update would compute them in under :func:`gchgg.linear.products_in`); plain ``nn.Linear``
             layers multiply in float32.
+        compiled: run the arithmetic compiled (above).
 
     Raises:
         ValueError: ``loss`` has networks this update does not compute (the reason given), or
             ``precision`` is not a resolved precision.
     """
 
-    def __init__(self, loss: HindsightDDPGLoss, precision: str = "float32") -> None:
+    def __init__(self, loss: HindsightDDPGLoss, precision: str = "float32", compiled: bool = False) -> None:
         reason = unsupported(loss)
         if reason is not None:
             raise ValueError(f"FusedDDPGUpdate needs ReLU MLPs of plain float32 nn.Linear layers: {reason}")
@@ -198,14 +253,37 @@ class FusedDDPGUpdate:
             raise ValueError(f"precision must be 'float32' or 'bfloat16' (resolved, as gchgg.linear.resolve_precision "
                              f"returns it), got {precision!r}")
         self.precision = precision
+        self.compiled = bool(compiled)
         self._dtype = getattr(torch, precision)
         self._layers = {name: _relu_mlp_layers(getattr(loss, name).mlp)
                         for name in ("actor", "critic", "target_actor", "target_critic")}  # fmt: skip
-        # The target networks' rounded weights, kept across updates (see _Products). Only theirs: they move
-        # in place by lerp_ and load_state_dict, which bump a tensor's version; a fused optimiser's step
-        # (the online networks') does not.
+        # The target networks' rounded weights, kept across updates by the eager update (layer index ->
+        # (weight, its data pointer and version, it rounded)). Only theirs: they move in place by lerp_ and
+        # load_state_dict, which bump a tensor's version; a fused optimiser's step (the online networks') does not.
         self._rounded: dict[str, dict] = {"target_actor": {}, "target_critic": {}}
         self._saved: tuple | None = None
+
+    def _onednn(self, name: str, rows: int) -> tuple[bool, ...]:
+        """Which layers of network ``name`` multiply a batch of ``rows`` rows on oneDNN (as :class:`OneDNNLinear`
+        would)."""
+        return tuple(type(layer) is OneDNNLinear and rows >= MIN_BATCH for layer in self._layers[name])
+
+    def _weights(self, name: str, onednn: tuple[bool, ...]) -> list[torch.Tensor]:
+        """Network ``name``'s weights, each oneDNN layer's in the products' dtype: rounded once per update,
+        a target network's again only after it moved."""
+        kept = self._rounded.get(name, {})
+        weights = []
+        for i, (layer, on) in enumerate(zip(self._layers[name], onednn, strict=True)):
+            weight = layer.weight
+            if not on:
+                weights.append(weight)
+                continue
+            stamp = (weight.data_ptr(), weight._version)
+            rounded = kept.get(i)
+            if rounded is None or rounded[0] is not weight or rounded[1] != stamp:  # another tensor, or changed
+                rounded = kept[i] = (weight, stamp, weight.detach().to(self._dtype))
+            weights.append(rounded[2])
+        return weights
 
     @torch.no_grad()
     def forward(
@@ -217,53 +295,40 @@ class FusedDDPGUpdate:
         reward: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """``(loss_actor, loss_value, pred_value [B, 1], target_value [B, 1])``, the values of
-        :meth:`HindsightDDPGLoss.losses`; keeps what :meth:`backward` needs."""
+        :meth:`HindsightDDPGLoss.losses`; keeps the gradients for :meth:`backward`."""
         loss, actor = self.loss, self.loss.actor
+        if reward.shape != (observation.shape[0], 1):
+            raise ValueError(f"the reward must be [B, 1] like the critic's output ({observation.shape[0]}, 1), "
+                             f"got {tuple(reward.shape)}")
         normalize = lambda o, g: torch.cat([actor.observation_normalizer(o), actor.goal_normalizer(g)], -1)  # noqa: E731
-        next_x = normalize(next_observation, goal)
-        products = {name: _Products(layers, self._dtype, self._rounded.get(name))
-                    for name, layers in self._layers.items()}  # fmt: skip
-        next_action = products["target_actor"].forward(next_x)[-1].tanh_()
-        next_value = products["target_critic"].forward(torch.cat([next_x, next_action], -1))[-1]
-        if loss.clip_return:
-            next_value = next_value.clamp_(*loss.return_range)
-        target_value = reward + loss.gamma * next_value
-
-        x = normalize(observation, goal)
-        actor, critic = products["actor"], products["critic"]
-        actor_outputs = actor.forward(x)
-        policy_action = actor_outputs[-1].tanh()
-        value_outputs = critic.forward(torch.cat([x, action], -1))  # Q(s‖g, a)
-        policy_outputs = critic.forward(torch.cat([x, policy_action], -1))  # Q(s‖g, π(s‖g))
-        pred_value, policy_value = value_outputs[-1], policy_outputs[-1]
-        if pred_value.shape != target_value.shape:
-            raise ValueError(
-                f"the reward must be [B, 1] like the critic's output {tuple(pred_value.shape)}, "
-                f"got {tuple(reward.shape)}"
-            )
-        error = pred_value - target_value
-        loss_value = error.square().mean()
-        loss_actor = -policy_value.mean()
-        if loss.action_l2:
-            loss_actor = loss_actor + loss.action_l2 * policy_action.square().mean()
-        self._saved = (actor, critic, error, policy_action, actor_outputs, value_outputs, policy_outputs)
-        return loss_actor, loss_value, pred_value, target_value
+        x, next_x = normalize(observation, goal), normalize(next_observation, goal)
+        onednn = {name: self._onednn(name, observation.shape[0]) for name in self._layers}
+        return_range = loss.return_range if loss.clip_return else None
+        inputs = (x, next_x, action, reward, loss.gamma, return_range, loss.action_l2)
+        if self.compiled:
+            weights = {name: [layer.weight for layer in layers] for name, layers in self._layers.items()}
+            biases = {name: [layer.bias for layer in layers] for name, layers in self._layers.items()}
+            try:
+                out = _compiled()(weights, biases, onednn, self._dtype, *inputs)
+            except Exception as error:  # Inductor's failures (no C++ compiler, an unsupported op) have many types
+                raise RuntimeError(
+                    "gradients='compiled' needs torch.compile (TorchInductor, with a C++ compiler) to build the "
+                    f"update on this machine, and it failed: {type(error).__name__}: {error}; use gradients=fused"
+                ) from error
+        else:
+            products = {name: _Products(self._weights(name, on), [layer.bias for layer in self._layers[name]], on)
+                        for name, on in onednn.items()}  # fmt: skip
+            out = _losses_and_gradients(products, *inputs)
+        self._saved = out[4:]
+        return out[:4]
 
     @torch.no_grad()
     def backward(self) -> None:
-        """Write the online actor's and critic's ``.grad`` from the last :meth:`forward`."""
+        """Set the online actor's and critic's ``.grad`` from the last :meth:`forward`."""
         if self._saved is None:
             raise RuntimeError("FusedDDPGUpdate.backward() needs a forward() first (and runs once per forward)")
-        actor, critic, error, policy_action, actor_outputs, value_outputs, policy_outputs = self._saved
+        for name, grads in zip(("critic", "actor"), self._saved, strict=True):
+            parameters = [p for layer in self._layers[name] for p in (layer.weight, layer.bias)]
+            for parameter, grad in zip(parameters, grads, strict=True):
+                parameter.grad = grad
         self._saved = None
-        # the critic loss: ∂ mean((Q − y)²) / ∂Q into the critic's weights
-        critic.backward_weights(value_outputs, error * (2.0 / error.numel()))
-        # the actor loss: ∂(−mean Q(s‖g, π)) / ∂Q back to the action only (the critic's weights are constants)
-        grad_q = torch.full_like(policy_outputs[-1], -1.0 / policy_outputs[-1].numel())
-        grad_action = critic.backward_input(policy_outputs, grad_q)[:, -policy_action.shape[-1]:]
-        if self.loss.action_l2:
-            # ∂(l2·mean(a²))/∂a in autograd's order and rounding: (float32(l2) / n) · 2a
-            scale = torch.tensor(self.loss.action_l2, dtype=grad_action.dtype) / policy_action.numel()
-            grad_action = grad_action + (2 * policy_action) * scale
-        grad_pre_tanh = torch.ops.aten.tanh_backward(grad_action, policy_action)  # ∂y·(1 − y²), as autograd
-        actor.backward_weights(actor_outputs, grad_pre_tanh)

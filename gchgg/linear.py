@@ -103,8 +103,27 @@ def onednn_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | No
     float32 ``bias`` beside bfloat16 operands is added before the result is rounded); ``x`` [B, in] and
     ``weight`` [out, in] may be strided views. With ``relu=True`` oneDNN applies the ReLU before it rounds
     the result, which gives the same values as a ReLU after (rounding is monotone and keeps 0).
-    :class:`OneDNNLinear` and :class:`gchgg.fused_update.FusedDDPGUpdate` compute their products with it."""
+    :class:`OneDNNLinear` and :class:`gchgg.fused_update.FusedDDPGUpdate` compute their products with it.
+
+    Under ``torch.compile`` it is the custom operator ``gchgg::onednn_linear``, which calls the same kernel:
+    TorchInductor lowers oneDNN's linear only for the constant weights of a frozen model, and takes a custom
+    operator as a call it leaves alone."""
+    if torch.compiler.is_compiling():
+        return torch.ops.gchgg.onednn_linear(x, weight, bias, relu)
     return torch.ops.mkldnn._linear_pointwise(x, weight, bias, "relu" if relu else "none", [], "")
+
+
+# gchgg::onednn_linear: a plain operator whose CPU kernel is onednn_linear's (a torch.library.custom_op would wrap each
+# call in tens of microseconds of Python bookkeeping); its fake kernel gives TorchInductor the result's shape.
+_library = torch.library.Library("gchgg", "DEF")
+_library.define("onednn_linear(Tensor x, Tensor weight, Tensor? bias, bool relu) -> Tensor")
+_library.impl("onednn_linear", lambda x, weight, bias, relu: torch.ops.mkldnn._linear_pointwise(
+    x, weight, bias, "relu" if relu else "none", [], ""), "CPU")  # fmt: skip
+
+
+@torch.library.register_fake("gchgg::onednn_linear")
+def _(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, relu: bool) -> torch.Tensor:
+    return x.new_empty(x.shape[0], weight.shape[0])
 
 
 def onednn_mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -1,14 +1,18 @@
 """Tests of gchgg.fused_update: the hand-differentiated DDPG update equals autograd's on the loss module,
 bit for bit, on torch's BLAS and on oneDNN layers in float32 and bfloat16, and the agent chooses it
-wherever it applies."""
+wherever it applies; compiled (``gradients=compiled``) it equals the eager one to float32 rounding."""
 
 from __future__ import annotations
+
+import math
+import shutil
 
 import pytest
 import torch
 from tensordict import TensorDict
 from torch import nn
 
+from gchgg import fused_update
 from gchgg.agent import DDPGAgent, HindsightDDPGLoss, make_ddpg_networks
 from gchgg.fused_update import FusedDDPGUpdate, unsupported
 from gchgg.linear import bf16_available, onednn_available, products_in, use_onednn
@@ -164,7 +168,7 @@ def test_auto_takes_the_fused_update_wherever_it_applies():
     assert DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd").gradients == "autograd"
     if onednn_available():  # oneDNN layers too, in the precision auto resolves to here
         assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn", precision="auto").gradients == "fused"
-    with pytest.raises(ValueError, match=r"gradients must be one of \['auto', 'fused', 'autograd'\], got 'manual'"):
+    with pytest.raises(ValueError, match=r"gradients must be one of \[.*'compiled', 'autograd'\], got 'manual'"):
         DDPGAgent(OBS, GOAL, ACT, hidden=(16,), gradients="manual")
     agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd")
     agent.critic.mlp[1] = nn.Tanh()  # a network the fused update does not compute: auto falls back, fused refuses
@@ -225,3 +229,60 @@ def test_fused_update_follows_target_networks_moved_or_loaded_in_place(precision
         made.load_state_dict(other.state_dict())  # other target networks, copied into the same tensors
     batch = batch_of(tensors(80, 99))
     assert agents[0].update(batch) == agents[1].update(batch)
+
+
+needs_compiler = pytest.mark.skipif(
+    shutil.which("c++") is None and shutil.which("g++") is None, reason="torch.compile's Inductor needs a C++ compiler"
+)
+COMPILED_PRECISION = "bfloat16" if bf16_available() else "float32"
+
+
+@needs_compiler
+@pytest.mark.skipif(not onednn_available(), reason="this torch has no oneDNN linear")
+def test_compiled_update_equals_the_eager_one_to_float32_rounding():
+    loss = use_onednn(loss_module((64, 32, 128), action_l2=0.3), "onednn")
+    values = tensors(96, seed=4)  # oneDNN's products (from MIN_BATCH rows)
+    parameters = list(loss.actor.parameters()) + list(loss.critic.parameters())
+    results = {}
+    for compiled in (False, True):
+        update = FusedDDPGUpdate(loss, precision=COMPILED_PRECISION, compiled=compiled)
+        out = update.forward(*values)
+        update.backward()
+        results[compiled] = (out, [p.grad.clone() for p in parameters])
+    (eager_out, eager_grads), (compiled_out, compiled_grads) = results[False], results[True]
+    for name, a, b in zip(("loss_actor", "loss_value", "pred_value", "target_value"), eager_out, compiled_out,
+                          strict=True):  # fmt: skip
+        assert b.dtype == torch.float32 and b.shape == a.shape, name
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-6), name
+    for i, (a, b) in enumerate(zip(eager_grads, compiled_grads, strict=True)):
+        scale = a.abs().max().item()
+        assert (a - b).abs().max().item() <= 1e-5 * scale, f"gradient {i}"
+
+
+@needs_compiler
+@pytest.mark.skipif(not onednn_available(), reason="this torch has no oneDNN linear")
+def test_agent_with_compiled_gradients_trains():
+    agent = DDPGAgent(OBS, GOAL, ACT, hidden=(64, 32, 128), action_l2=0.3, generator=torch.Generator().manual_seed(0),
+                      matmul="onednn", precision=COMPILED_PRECISION, gradients="compiled")  # fmt: skip
+    assert agent.gradients == "compiled"
+    agent.update_normalizer(*tensors(200, 5)[:2])
+    before = [p.clone() for p in agent.actor.parameters()]
+    for step in range(3):
+        values = agent.update(batch_of(tensors(96, 30 + step)))
+        assert all(math.isfinite(v) for v in values.values())
+    assert all(not torch.equal(a, p) for a, p in zip(before, agent.actor.parameters(), strict=True))
+
+
+def test_a_compiled_update_that_cannot_be_built_says_so(monkeypatch):
+    def unbuildable(*args):
+        raise RuntimeError("no C++ compiler found")
+
+    monkeypatch.setattr(fused_update, "_compiled", lambda: unbuildable)
+    update = FusedDDPGUpdate(loss_module((16,)), compiled=True)
+    with pytest.raises(RuntimeError, match=r"gradients='compiled' needs torch.compile.*no C\+\+ compiler found.*"
+                                           r"use gradients=fused"):  # fmt: skip
+        update.forward(*tensors(8, 2))
+    with pytest.raises(ValueError, match="gradients='compiled' differentiates ReLU MLPs.*layer 1 is Tanh"):
+        agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd")
+        agent.critic.mlp[1] = nn.Tanh()
+        agent._fused_update("compiled")

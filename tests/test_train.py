@@ -185,7 +185,7 @@ def test_corrupt_checkpoint_is_an_error_that_says_so(tmp_path):
         ("graph.n=[31,3,11]", "spacing"),
         ("graph.margin=-0.1", "margin"),
         ("matmul=mkl", "matmul must be one of 'auto', 'onednn', 'default', got 'mkl'"),
-        ("gradients=manual", "gradients must be one of 'auto', 'fused', 'autograd', got 'manual'"),
+        ("gradients=manual", "gradients must be one of 'auto', 'fused', 'compiled', 'autograd', got 'manual'"),
         ("subnormals=off", "subnormals must be one of 'flush', 'keep', got 'off'"),
     ],
 )
