@@ -25,7 +25,7 @@ Last, the oneDNN update in float32 and in bfloat16, each by autograd and with ``
 in rotating rounds beside the bare float32 update (``fused / bare fp32``: below 1 is an update faster
 than the fp32 floor's); then the training default's update with its optimisers stepped by
 :func:`gchgg.adam_step.adam_step` against the same with ``Adam.step``, and whether the two stay equal;
-then the same update (the training default's, ``gradients=auto``: eager) against a twin with
+then that update run eagerly (``gradients=fused``) against a twin with
 ``gradients=compiled`` (:class:`gchgg.fused_update.FusedDDPGUpdate` compiled by ``torch.compile``), their
 agreement on one fixed batch and their drift; ``--profile`` prints both updates' top operators.
 """
@@ -353,8 +353,9 @@ def adam_steps(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
 
 
 def compiled_gradients(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
-    """The training default's update (``gradients=auto``: the fused update, eager) against a twin with
-    ``gradients=compiled`` (the same update compiled by ``torch.compile``): their losses and gradients on one
+    """The training default's products (``precision=auto``) in the fused update run eagerly (``gradients=fused``)
+    against a twin with ``gradients=compiled`` (the same update compiled by ``torch.compile``; what
+    ``gradients=auto`` picks where the products are bfloat16 on oneDNN): their losses and gradients on one
     fixed batch from the same weights, relative to each value's largest entry (the compiled twin's first
     update, which compiles, timed); then their updates in alternating rounds, and how far the twins' actors
     drift apart over them."""
@@ -362,7 +363,7 @@ def compiled_gradients(onednn: DDPGAgent, batches, rounds: int, updates: int) ->
         print("gradients=compiled: skipped (torch.compile's Inductor needs a C++ compiler, and none is on PATH)")
         return
     twins = {}
-    for gradients in ("auto", "compiled"):
+    for gradients in ("fused", "compiled"):
         agent = DDPGAgent(onednn.obs_dim, onednn.goal_dim, onednn.action_dim, precision="auto", gradients=gradients)
         agent.load_state_dict(copy.deepcopy(onednn.state_dict()))
         twins[gradients] = agent

@@ -32,8 +32,9 @@ two gchgg runs in two processes at once against one alone, each as training runs
 The networks' products run on ``--matmul`` (default ``auto``, the trainer's default: oneDNN where
 measured faster, ``gchgg.linear.ONEDNN_FASTER``, or for bfloat16 products), the bare updates of the
 floor too; the trainers' updates in the training default ``precision=auto`` (bfloat16 where oneDNN
-computes it natively) with ``gradients=auto`` (differentiated by hand), the floors' bare updates in
-float32 with autograd.
+computes it natively) with ``gradients=auto`` (differentiated by hand, and compiled by ``torch.compile``
+where the products are bfloat16 on oneDNN and a C++ compiler is found; the header says which), the
+floors' bare updates in float32 with autograd.
 
     python benchmarks/iteration.py [--iterations 3] [--updates 1000] [--threads 1] [--chunks 1 5 50]
                                    [--matmul auto] [--overlap 3]
@@ -65,6 +66,7 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg import checkpoint  # noqa: E402
+from gchgg.agent import DDPGAgent  # noqa: E402
 from gchgg.evaluator import BackgroundEvaluator  # noqa: E402
 from gchgg.linear import MATMUL_BACKENDS, resolve_matmul, resolve_precision, use_onednn  # noqa: E402
 from gchgg.metrics import IterationStats  # noqa: E402
@@ -593,9 +595,10 @@ def main() -> None:
     _, fp32_update_s = floor_seconds(1, 1, args.updates, 256, "default")
     fp32_floor = env_s + fp32_update_s
     precision = resolve_precision("auto", args.matmul)
+    gradients = DDPGAgent(25, 3, 3, matmul=args.matmul, precision="auto").gradients  # the trainers' update, resolved
     print(f"push_new, 50 episodes x 100 steps + {args.updates} updates of 256, threads={args.threads}, "
           f"matmul={args.matmul} ({resolve_matmul(args.matmul, precision)}), precision=auto "
-          f"({precision}, the training default), gradients=auto")
+          f"({precision}, the training default), gradients=auto ({gradients})")
     print(f"floor: {floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare DDPG updates {update_s:.2f} s)")
     print(f"fp32 floor: {fp32_floor:.2f} s  (raw dm_control steps {env_s:.2f} s + bare fp32 DDPG updates with "
           f"torch's default matmul {fp32_update_s:.2f} s)")

@@ -42,8 +42,8 @@ from torch import nn
 from torchrl.modules import MLP
 
 from gchgg.adam_step import adam_step
-from gchgg.fused_update import FusedDDPGUpdate, unsupported
-from gchgg.linear import MIN_BATCH, products_in, resolve_matmul, resolve_precision, use_onednn
+from gchgg.fused_update import FusedDDPGUpdate, compiler_found, unsupported
+from gchgg.linear import MIN_BATCH, OneDNNLinear, products_in, resolve_matmul, resolve_precision, use_onednn
 from gchgg.subnormal import SUBNORMALS, flush_subnormals
 from gchgg.validation import check_choice, check_number
 
@@ -266,9 +266,10 @@ GRADIENTS = ("auto", "fused", "compiled", "autograd")
 (:class:`gchgg.fused_update.FusedDDPGUpdate`: bit for bit autograd's, on torch's BLAS and on oneDNN in
 float32 or bfloat16, faster by the autograd overhead and conversions it skips,
 ``benchmarks/agent_update.py``); ``compiled``: that update compiled by ``torch.compile`` (TorchInductor,
-which needs a C++ compiler), equal to it to float32 rounding and faster by the Python and element-wise
-passes it removes; ``auto``: ``fused`` where it applies (the ReLU MLPs :func:`make_ddpg_networks` builds),
-else ``autograd``."""
+which needs a C++ compiler) for the batches whose products run on oneDNN, equal to it to float32 rounding and
+faster by the Python and element-wise passes it removes; ``auto``: ``compiled`` where the products are
+bfloat16 on oneDNN and a C++ compiler is found (:func:`gchgg.fused_update.compiler_found`), else ``fused``
+where it applies (the ReLU MLPs :func:`make_ddpg_networks` builds), else ``autograd``."""
 
 
 @dataclass(frozen=True)
@@ -619,7 +620,11 @@ class DDPGAgent:
             return None
         reason = unsupported(self.loss_module)
         if reason is None:
-            return FusedDDPGUpdate(self.loss_module, precision=self.precision, compiled=gradients == "compiled")
+            on_onednn = any(type(layer) is OneDNNLinear for layer in self.loss_module.modules())
+            compiled = gradients == "compiled" or (
+                gradients == "auto" and self.precision == "bfloat16" and on_onednn and compiler_found()
+            )
+            return FusedDDPGUpdate(self.loss_module, precision=self.precision, compiled=compiled)
         if gradients in ("fused", "compiled"):
             raise ValueError(f"gradients={gradients!r} differentiates ReLU MLPs of float32 linear layers, but "
                              f"{reason}; use gradients=auto or autograd")

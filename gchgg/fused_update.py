@@ -37,6 +37,8 @@ than once per product, and lets oneDNN apply each hidden ReLU inside its product
 from __future__ import annotations
 
 import functools
+import os
+import shutil
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -48,7 +50,7 @@ from gchgg.linear import MIN_BATCH, OneDNNLinear, onednn_linear, onednn_mm
 if TYPE_CHECKING:  # the loss module is only read: its networks, normalisers and constants
     from gchgg.agent import HindsightDDPGLoss
 
-__all__ = ["FusedDDPGUpdate", "unsupported"]
+__all__ = ["FusedDDPGUpdate", "compiler_found", "unsupported"]
 
 
 def _relu_mlp_layers(mlp: nn.Module) -> list[nn.Linear] | str:
@@ -208,6 +210,12 @@ def _compiled_arithmetic(
     return _losses_and_gradients(products, *inputs)
 
 
+def compiler_found() -> bool:
+    """Whether a C++ compiler is on this machine (``$CXX``, ``c++``, ``g++`` or ``clang++``), which TorchInductor
+    needs to build :class:`FusedDDPGUpdate`'s compiled update."""
+    return bool(os.environ.get("CXX") or any(shutil.which(name) for name in ("c++", "g++", "clang++")))
+
+
 @functools.cache
 def _compiled() -> Callable:
     """:func:`_compiled_arithmetic` compiled by TorchInductor (built once per process, per input shapes)."""
@@ -224,7 +232,9 @@ class FusedDDPGUpdate:
     constants are read from ``loss`` at every call, so it follows their updates and a loaded state.
 
     With ``compiled=True`` the arithmetic (:func:`_losses_and_gradients`, every layer's weight rounded
-    inside it) runs compiled by ``torch.compile`` (TorchInductor, which needs a C++ compiler): the
+    inside it) of each batch whose products run on oneDNN (:class:`OneDNNLinear` layers, batches of at least
+    :data:`MIN_BATCH` rows; smaller batches run eagerly, on torch's BLAS, where compiling was not measured)
+    runs compiled by ``torch.compile`` (TorchInductor, which needs a C++ compiler): the
     element-wise work fused into a few loops and the Python between the kernels gone. Its products are
     the same oneDNN and BLAS calls, but Inductor sums the bias gradients and the losses' means in its own
     order and computes some thin products its own way, so losses and gradients agree with the eager
@@ -240,8 +250,8 @@ class FusedDDPGUpdate:
         compiled: run the arithmetic compiled (above).
 
     Raises:
-        ValueError: ``loss`` has networks this update does not compute (the reason given), or
-            ``precision`` is not a resolved precision.
+        ValueError: ``loss`` has networks this update does not compute (the reason given), ``precision``
+            is not a resolved precision, or ``compiled=True`` with no layer on oneDNN.
     """
 
     def __init__(self, loss: HindsightDDPGLoss, precision: str = "float32", compiled: bool = False) -> None:
@@ -257,6 +267,10 @@ class FusedDDPGUpdate:
         self._dtype = getattr(torch, precision)
         self._layers = {name: _relu_mlp_layers(getattr(loss, name).mlp)
                         for name in ("actor", "critic", "target_actor", "target_critic")}  # fmt: skip
+        on_onednn = [type(layer) is OneDNNLinear for layers in self._layers.values() for layer in layers]
+        if self.compiled and not any(on_onednn):
+            raise ValueError("compiled=True compiles the updates whose products run on oneDNN, but no layer of these "
+                             "networks is a OneDNNLinear (matmul=default?); use the eager update (gradients=fused)")
         # The target networks' rounded weights, kept across updates by the eager update (layer index ->
         # (weight, its data pointer and version, it rounded)). Only theirs: they move in place by lerp_ and
         # load_state_dict, which bump a tensor's version; a fused optimiser's step (the online networks') does not.
@@ -305,7 +319,7 @@ class FusedDDPGUpdate:
         onednn = {name: self._onednn(name, observation.shape[0]) for name in self._layers}
         return_range = loss.return_range if loss.clip_return else None
         inputs = (x, next_x, action, reward, loss.gamma, return_range, loss.action_l2)
-        if self.compiled:
+        if self.compiled and any(any(on) for on in onednn.values()):
             weights = {name: [layer.weight for layer in layers] for name, layers in self._layers.items()}
             biases = {name: [layer.bias for layer in layers] for name, layers in self._layers.items()}
             try:

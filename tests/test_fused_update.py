@@ -166,8 +166,8 @@ def test_auto_takes_the_fused_update_wherever_it_applies():
     agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default")  # gradients="auto"
     assert agent.gradients == "fused"
     assert DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd").gradients == "autograd"
-    if onednn_available():  # oneDNN layers too, in the precision auto resolves to here
-        assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn", precision="auto").gradients == "fused"
+    if onednn_available():  # oneDNN layers too, in float32 (in bfloat16 auto compiles it where it can: below)
+        assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), matmul="onednn", precision="float32").gradients == "fused"
     with pytest.raises(ValueError, match=r"gradients must be one of \[.*'compiled', 'autograd'\], got 'manual'"):
         DDPGAgent(OBS, GOAL, ACT, hidden=(16,), gradients="manual")
     agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd")
@@ -273,16 +273,29 @@ def test_agent_with_compiled_gradients_trains():
     assert all(not torch.equal(a, p) for a, p in zip(before, agent.actor.parameters(), strict=True))
 
 
+@pytest.mark.skipif(not onednn_available(), reason="this torch has no oneDNN linear")
 def test_a_compiled_update_that_cannot_be_built_says_so(monkeypatch):
     def unbuildable(*args):
         raise RuntimeError("no C++ compiler found")
 
     monkeypatch.setattr(fused_update, "_compiled", lambda: unbuildable)
-    update = FusedDDPGUpdate(loss_module((16,)), compiled=True)
+    update = FusedDDPGUpdate(use_onednn(loss_module((64, 64)), "onednn"), compiled=True)
+    update.forward(*tensors(8, 2))  # below MIN_BATCH rows: eager, on torch's BLAS
     with pytest.raises(RuntimeError, match=r"gradients='compiled' needs torch.compile.*no C\+\+ compiler found.*"
                                            r"use gradients=fused"):  # fmt: skip
-        update.forward(*tensors(8, 2))
+        update.forward(*tensors(64, 2))
+    with pytest.raises(ValueError, match=r"compiled=True compiles the updates whose products run on oneDNN.*"
+                                         r"matmul=default"):  # fmt: skip
+        FusedDDPGUpdate(loss_module((16,)), compiled=True)
+    agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd")
+    agent.critic.mlp[1] = nn.Tanh()
     with pytest.raises(ValueError, match="gradients='compiled' differentiates ReLU MLPs.*layer 1 is Tanh"):
-        agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd")
-        agent.critic.mlp[1] = nn.Tanh()
         agent._fused_update("compiled")
+
+
+def test_auto_compiles_the_update_where_the_products_are_bfloat16_on_onednn_and_a_compiler_is_found(monkeypatch):
+    expected = "compiled" if bf16_available() and fused_update.compiler_found() else "fused"
+    assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), precision="auto").gradients == expected
+    assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), precision="float32").gradients == "fused"
+    monkeypatch.setattr("gchgg.agent.compiler_found", lambda: False)
+    assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), precision="auto").gradients == "fused"
