@@ -23,11 +23,12 @@ order: the same math, other float32 rounding, which training amplifies in both. 
 times the same agent with ``torch.compile`` on its loss (a candidate that lost) against today's.
 Last, the oneDNN update in float32 and in bfloat16, each by autograd and with ``gradients="fused"``,
 in rotating rounds beside the bare float32 update (``fused / bare fp32``: below 1 is an update faster
-than the fp32 floor's); then the training default's update with its optimisers stepped by
-:func:`gchgg.adam_step.adam_step` against the same with ``Adam.step``, and whether the two stay equal;
-then that update run eagerly (``gradients=fused``) against a twin with
-``gradients=compiled`` (:class:`gchgg.fused_update.FusedDDPGUpdate` compiled by ``torch.compile``), their
-agreement on one fixed batch and their drift; ``--profile`` prints both updates' top operators.
+than the fp32 floor's); then the training default's products in the update run eagerly
+(``gradients=fused``) against a twin with ``gradients=compiled`` (:class:`gchgg.fused_update.FusedDDPGUpdate`
+compiled by ``torch.compile``, what ``gradients=auto`` runs there): the seconds of its first update, which
+compiles, their agreement on one fixed batch and their drift; then the training default's update with its
+optimisers stepped by :func:`gchgg.adam_step.adam_step` against the same with ``Adam.step``, and whether
+the two stay equal; ``--profile`` prints both updates' top operators.
 """
 
 from __future__ import annotations
@@ -199,8 +200,8 @@ def main() -> None:
     onednn_update(agent, onednn, batches, args.rounds, args.updates, args.min_features)
     bf16_update(onednn, batches, args.rounds, args.updates)
     fused_onednn(onednn, bare, batches, plain, args.rounds, args.updates)
+    compiled_gradients(onednn, batches, args.rounds, args.updates)  # first: its first update compiles
     adam_steps(onednn, batches, args.rounds, args.updates)
-    compiled_gradients(onednn, batches, args.rounds, args.updates)
     if args.compile:
         compiled_update(agent, batches, args.rounds, args.updates)
     act_one(onednn, args.rounds)
