@@ -45,7 +45,7 @@ products: those where the whole update was measured faster on it than on torch's
 thread, batch 256 (``python benchmarks/agent_update.py --threads 1``; docs/benchmarks.md): AMD EPYC
 at AVX512 (2 cores) 1.59x. Not AMD EPYC at AVX2: 0.80x, every product but one of the update slower
 on oneDNN (``benchmarks/linear.py``: the 256-wide hidden layers' 0.82-0.93x at batch 256); not an
-Intel Xeon at AVX512 with AMX: 0.85x (MKL is Intel's own BLAS). Other CPUs are unmeasured and keep
+Intel Xeon at AVX512 with AMX: 0.79x (MKL is Intel's own BLAS). Other CPUs are unmeasured and keep
 torch's BLAS. bfloat16 products are oneDNN's wherever they are native (:func:`resolve_matmul`)."""
 
 MIN_BATCH = 64
