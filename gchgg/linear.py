@@ -110,15 +110,18 @@ def onednn_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | No
     operator as a call it leaves alone."""
     if torch.compiler.is_compiling():
         return torch.ops.gchgg.onednn_linear(x, weight, bias, relu)
+    return _linear_pointwise(x, weight, bias, relu)
+
+
+def _linear_pointwise(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, relu: bool) -> torch.Tensor:
     return torch.ops.mkldnn._linear_pointwise(x, weight, bias, "relu" if relu else "none", [], "")
 
 
-# gchgg::onednn_linear: a plain operator whose CPU kernel is onednn_linear's (a torch.library.custom_op would wrap each
-# call in tens of microseconds of Python bookkeeping); its fake kernel gives TorchInductor the result's shape.
+# gchgg::onednn_linear: a plain operator whose CPU kernel is _linear_pointwise (a torch.library.custom_op would wrap
+# each call in tens of microseconds of Python bookkeeping); its fake kernel gives TorchInductor the result's shape.
 _library = torch.library.Library("gchgg", "DEF")
 _library.define("onednn_linear(Tensor x, Tensor weight, Tensor? bias, bool relu) -> Tensor")
-_library.impl("onednn_linear", lambda x, weight, bias, relu: torch.ops.mkldnn._linear_pointwise(
-    x, weight, bias, "relu" if relu else "none", [], ""), "CPU")  # fmt: skip
+_library.impl("onednn_linear", _linear_pointwise, "CPU")
 
 
 @torch.library.register_fake("gchgg::onednn_linear")
