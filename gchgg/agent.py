@@ -608,8 +608,6 @@ class DDPGAgent:
         self.goal_normalizer: RunningNormalizer = self.loss_module.actor.goal_normalizer
         self._small_batch_actor = SmallBatchActor(self.actor)  # the rollout's one-episode steps
         self._fused = self._fused_update(gradients)
-        # the setting resolved
-        self.gradients = "autograd" if self._fused is None else "compiled" if self._fused.compiled else "fused"
         self.num_updates = 0
 
     def _fused_update(self, gradients: str) -> FusedDDPGUpdate | None:
@@ -624,11 +622,20 @@ class DDPGAgent:
             compiled = gradients == "compiled" or (
                 gradients == "auto" and self.precision == "bfloat16" and on_onednn and compiler_found()
             )
-            return FusedDDPGUpdate(self.loss_module, precision=self.precision, compiled=compiled)
+            return FusedDDPGUpdate(self.loss_module, precision=self.precision, compiled=compiled,
+                                   fall_back=gradients == "auto")  # fmt: skip
         if gradients in ("fused", "compiled"):
             raise ValueError(f"gradients={gradients!r} differentiates ReLU MLPs of float32 linear layers, but "
                              f"{reason}; use gradients=auto or autograd")
         return None
+
+    @property
+    def gradients(self) -> str:
+        """The ``gradients`` setting resolved: ``"compiled"``, ``"fused"`` or ``"autograd"`` (``"fused"`` once a
+        compiled update that could not be built fell back to running eagerly)."""
+        if self._fused is None:
+            return "autograd"
+        return "compiled" if self._fused.compiled else "fused"
 
     # -- acting ---------------------------------------------------------------------------------
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 import functools
 import os
 import shutil
+import warnings
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -248,13 +249,18 @@ class FusedDDPGUpdate:
             update would compute them in under :func:`gchgg.linear.products_in`); plain ``nn.Linear``
             layers multiply in float32.
         compiled: run the arithmetic compiled (above).
+        fall_back: where the compiled update cannot be built (Inductor fails: no usable C++ compiler or
+            headers, an unsupported platform), warn and run eagerly from then on (``compiled`` turns False)
+            instead of raising; ``gradients=auto`` sets it, ``gradients=compiled`` does not.
 
     Raises:
         ValueError: ``loss`` has networks this update does not compute (the reason given), ``precision``
             is not a resolved precision, or ``compiled=True`` with no layer on oneDNN.
     """
 
-    def __init__(self, loss: HindsightDDPGLoss, precision: str = "float32", compiled: bool = False) -> None:
+    def __init__(
+        self, loss: HindsightDDPGLoss, precision: str = "float32", compiled: bool = False, fall_back: bool = False
+    ) -> None:
         reason = unsupported(loss)
         if reason is not None:
             raise ValueError(f"FusedDDPGUpdate needs ReLU MLPs of plain float32 nn.Linear layers: {reason}")
@@ -264,6 +270,7 @@ class FusedDDPGUpdate:
                              f"returns it), got {precision!r}")
         self.precision = precision
         self.compiled = bool(compiled)
+        self.fall_back = bool(fall_back)
         self._dtype = getattr(torch, precision)
         self._layers = {name: _relu_mlp_layers(getattr(loss, name).mlp)
                         for name in ("actor", "critic", "target_actor", "target_critic")}  # fmt: skip
@@ -319,17 +326,21 @@ class FusedDDPGUpdate:
         onednn = {name: self._onednn(name, observation.shape[0]) for name in self._layers}
         return_range = loss.return_range if loss.clip_return else None
         inputs = (x, next_x, action, reward, loss.gamma, return_range, loss.action_l2)
+        out = None
         if self.compiled and any(any(on) for on in onednn.values()):
             weights = {name: [layer.weight for layer in layers] for name, layers in self._layers.items()}
             biases = {name: [layer.bias for layer in layers] for name, layers in self._layers.items()}
             try:
                 out = _compiled()(weights, biases, onednn, self._dtype, *inputs)
             except Exception as error:  # Inductor's failures (no C++ compiler, an unsupported op) have many types
-                raise RuntimeError(
-                    "gradients='compiled' needs torch.compile (TorchInductor, with a C++ compiler) to build the "
-                    f"update on this machine, and it failed: {type(error).__name__}: {error}; use gradients=fused"
-                ) from error
-        else:
+                cause = f"torch.compile (TorchInductor, with a C++ compiler) failed: {type(error).__name__}: {error}"
+                if not self.fall_back:
+                    raise RuntimeError(f"gradients='compiled' needs torch.compile to build the update on this "
+                                       f"machine, and {cause}; use gradients=fused") from error
+                warnings.warn(f"the compiled DDPG update cannot be built here ({cause}); the updates run eagerly "
+                              "from now on, as gradients=fused runs them", RuntimeWarning, stacklevel=2)
+                self.compiled = False
+        if out is None:
             products = {name: _Products(self._weights(name, on), [layer.bias for layer in self._layers[name]], on)
                         for name, on in onednn.items()}  # fmt: skip
             out = _losses_and_gradients(products, *inputs)

@@ -291,6 +291,18 @@ def test_a_compiled_update_that_cannot_be_built_says_so(monkeypatch):
     agent.critic.mlp[1] = nn.Tanh()
     with pytest.raises(ValueError, match="gradients='compiled' differentiates ReLU MLPs.*layer 1 is Tanh"):
         agent._fused_update("compiled")
+    fallback = FusedDDPGUpdate(use_onednn(loss_module((64, 64)), "onednn"), compiled=True, fall_back=True)
+    with pytest.warns(RuntimeWarning, match=r"compiled DDPG update cannot be built here.*no C\+\+ compiler found.*"
+                                            r"run eagerly"):  # fmt: skip
+        out = fallback.forward(*tensors(64, 2))
+    assert not fallback.compiled and all(torch.isfinite(v).all() for v in out)
+    if bf16_available():  # gradients=auto falls back; the agent then says it runs the eager update
+        agent = DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), precision="auto", generator=torch.Generator().manual_seed(0))
+        if agent.gradients == "compiled":
+            agent.update_normalizer(*tensors(200, 5)[:2])
+            with pytest.warns(RuntimeWarning, match="cannot be built here"):
+                agent.update(batch_of(tensors(64, 3)))
+            assert agent.gradients == "fused"
 
 
 def test_auto_compiles_the_update_where_the_products_are_bfloat16_on_onednn_and_a_compiler_is_found(monkeypatch):
