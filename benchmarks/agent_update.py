@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 import copy
 import os
-import shutil
 import statistics
 import sys
 import time
@@ -50,6 +49,7 @@ from tensordict import TensorDict  # noqa: E402
 from torch import nn  # noqa: E402
 
 from gchgg.agent import DDPGAgent  # noqa: E402
+from gchgg.fused_update import compiler_found  # noqa: E402
 from gchgg.linear import MIN_FEATURES, bf16_available, products_in, use_onednn  # noqa: E402
 
 
@@ -360,8 +360,8 @@ def compiled_gradients(onednn: DDPGAgent, batches, rounds: int, updates: int) ->
     fixed batch from the same weights, relative to each value's largest entry (the compiled twin's first
     update, which compiles, timed); then their updates in alternating rounds, and how far the twins' actors
     drift apart over them."""
-    if shutil.which("c++") is None and shutil.which("g++") is None:
-        print("gradients=compiled: skipped (torch.compile's Inductor needs a C++ compiler, and none is on PATH)")
+    if not compiler_found():
+        print("gradients=compiled: skipped (torch.compile's Inductor needs a C++ compiler, and none is found)")
         return
     twins = {}
     for gradients in ("fused", "compiled"):

@@ -5,7 +5,6 @@ wherever it applies; compiled (``gradients=compiled``) it equals the eager one t
 from __future__ import annotations
 
 import math
-import shutil
 
 import pytest
 import torch
@@ -232,7 +231,7 @@ def test_fused_update_follows_target_networks_moved_or_loaded_in_place(precision
 
 
 needs_compiler = pytest.mark.skipif(
-    shutil.which("c++") is None and shutil.which("g++") is None, reason="torch.compile's Inductor needs a C++ compiler"
+    not fused_update.compiler_found(), reason="torch.compile's Inductor needs a C++ compiler"
 )
 COMPILED_PRECISION = "bfloat16" if bf16_available() else "float32"
 
