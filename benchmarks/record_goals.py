@@ -8,8 +8,8 @@ as a learning agent's buffer holds them early on, clumped where an object rests.
 Run: ``python benchmarks/record_goals.py ~/gchgg-runs/push_new/hgg-seed1`` (``--iterations 12
 --size 20000 --seed 0`` by default; ``--out`` to write elsewhere). Prints what it read and wrote.
 The recording docs/benchmarks.md's Xeon section read came from ``python -m gchgg.train
-env=push_new algo=hgg seed=1 train.iterations=12 precision=float32 matmul=default`` at e711ab2
-(``hydra.run.dir`` as the run folder above).
+env=push_new algo=hgg seed=1 train.iterations=12 precision=float32 matmul=default`` at 1c92d3a
+(``hydra.run.dir`` as the run folder above; the file is not kept in git, so a new machine records it anew).
 """
 
 from __future__ import annotations
