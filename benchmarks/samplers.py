@@ -276,7 +276,7 @@ def cher_speed(storage: LazyTensorStorage, rounds: int, pool: int = 5000, repeat
         uniform, seconds = (statistics.median(times[name, threads]) for name in ("uniform", "CHER"))
         label = "default" if threads == DEFAULT_THREADS else "one"
         print(f"  {threads} thread(s) ({label}): uniform {uniform * 1e3:.3f} ms, CHER {seconds * 1e3:.3f} ms "
-              f"= {seconds / uniform:.1f} x uniform (target <= 10)")
+              f"= {seconds / uniform:.2f} x uniform (target <= 10)")
     print("  where CHER's time goes (1 thread): "
           + ", ".join(f"{label} {statistics.median(parts[key]) * 1e3:.2f} ms" for key, label in
                       (("pool", "pool read + distances"), ("graph", "similarity graph"), ("greedy", "greedy choice")))
@@ -408,9 +408,9 @@ def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False)
         label = "default" if threads == DEFAULT_THREADS else "one"
         diagnosed = statistics.median(times["diagnostics", threads])
         print(f"  {threads} thread(s) ({label}): uniform {uniform * 1e3:.3f} ms, curriculum {seconds * 1e3:.3f} ms "
-              f"= {seconds / uniform:.1f} x uniform (target <= 5); the sampler's own sample() "
+              f"= {seconds / uniform:.2f} x uniform (target <= 5); the sampler's own sample() "
               f"{statistics.median(alone[threads]) * 1e3:.3f} ms; with diagnostics=True {diagnosed * 1e3:.3f} ms "
-              f"= {diagnosed / uniform:.1f} x")
+              f"= {diagnosed / uniform:.2f} x")
     if len(thread_counts) > 1:  # per round, the two thread counts ran back to back: their ratio, and its spread
         ratios = sorted(more / one for one, more in zip(alone[1], alone[thread_counts[-1]], strict=True))
         low, high = np.quantile(ratios, [0.25, 0.75])
