@@ -9,6 +9,9 @@ quiet as the machine was. Other sections are left as they are. A run where torch
 capability other than AVX-512, or on a CPU with AMX tiles (Intel Xeon: bfloat16 products on AMX,
 and its own BLAS's speed), writes its own section, ``<script> on <kind>`` (e.g. ``linear.py on AVX2``,
 ``iteration.py on AVX512 with AMX``), so the figures of each kind of machine stand side by side.
+A part a script leaves out (:func:`left_out`: an option narrowed the run, or :func:`missing_input`: an input
+file it reads is missing, e.g. the recorded goals of ``samplers.py``) keeps ``--docs`` from writing: the
+section would lose figures it held.
 """
 
 from __future__ import annotations
@@ -52,8 +55,30 @@ class _Tee(io.TextIOBase):
             stream.flush()
 
 
+_left_out: list[str] = []  # the parts this run left out, and why (left_out)
+
+
+def left_out(part: str, why: str) -> None:
+    """Record that this run leaves ``part`` out (``why``: e.g. the option that narrowed it); :func:`run` then
+    refuses ``--docs``, so a script's section never loses the figures of a part."""
+    _left_out.append(f"{part} ({why})")
+
+
+def missing_input(part: str, path: Path, how: str) -> None:
+    """Say that ``part`` is skipped because its input file ``path`` is missing (``how``: what writes it),
+    and leave it out (:func:`left_out`)."""
+    print(f"{part}: skipped, {_shown(path)} is missing ({how})")
+    left_out(part, f"{_shown(path)} is missing; {how}")
+
+
+def _shown(path: Path) -> Path:
+    """``path`` relative to the checkout where it lies inside it."""
+    return path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+
+
 def run(main: Callable[[], None], script: str) -> None:
-    """``main()``; with ``--docs`` in ``sys.argv`` also write its output into ``docs/benchmarks.md``."""
+    """``main()``; with ``--docs`` in ``sys.argv`` also write its output into ``docs/benchmarks.md``, unless a
+    part was left out (:func:`left_out`, :func:`missing_input`): then exit with status 1, naming it."""
     write = "--docs" in sys.argv
     if write:
         sys.argv.remove("--docs")
@@ -62,10 +87,13 @@ def run(main: Callable[[], None], script: str) -> None:
     captured = io.StringIO()
     with contextlib.redirect_stdout(_Tee(sys.stdout, captured)):
         main()
+    if write and _left_out:
+        sys.exit(f"--docs: not written, this run left out {'; '.join(_left_out)}; the section in {_shown(DOCS)} "
+                 "keeps its figures. Run every part to write it.")
     if write:
         name = section_name(Path(script).name, _kind())
         write_section(name, started, captured.getvalue())
-        print(f"wrote the {name} section of {DOCS.relative_to(ROOT)}", file=sys.stderr)
+        print(f"wrote the {name} section of {_shown(DOCS)}", file=sys.stderr)
 
 
 def section_name(script: str, kind: str) -> str:

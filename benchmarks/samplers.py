@@ -45,6 +45,7 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from report import left_out, missing_input  # noqa: E402  (benchmarks/report.py)
 from tensordict import TensorDict  # noqa: E402
 from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer  # noqa: E402
 
@@ -340,12 +341,13 @@ RECORDED_GOALS = ROOT / "benchmarks" / "data" / "push_new_achieved_goals.npy"
 def recorded_achieved_goals(size: int, generator: torch.Generator) -> torch.Tensor:
     """``size`` goals drawn (with replacement) from ``benchmarks/data/push_new_achieved_goals.npy``:
     20,000 achieved goals drawn uniformly from the first 12 iterations of the push_new ``algo=hgg`` run
-    of seed 1 (``train.iterations=12 precision=float32 matmul=default`` at e711ab2, on an Intel Xeon;
+    of seed 1 (``train.iterations=12 precision=float32 matmul=default`` at 1c92d3a, on an Intel Xeon;
     ``benchmarks/record_goals.py`` writes it from that run's replay files; it is an output, kept out of
     git), 836 of them distinct: an object mostly at rest repeats its position. The figures in
     docs/benchmarks.md dated before 2026-12-05 read an earlier recording (seed 1 at ccc4ff7, 1,058
-    distinct), those dated 2026-12-05 another (d6e9109 on an AVX2 machine, 1,107 distinct); both were
-    lost with their machines."""
+    distinct), those dated 2026-12-05 another (d6e9109 on an AVX2 machine, 1,107 distinct), both lost
+    with their machines; those dated 2026-12-06 one at e711ab2 (836 distinct, as the recording at
+    1c92d3a that replaced it when the work tree was laid anew)."""
     achieved = torch.from_numpy(np.load(RECORDED_GOALS))
     return achieved[torch.randint(len(achieved), (size,), generator=generator)]
 
@@ -500,6 +502,9 @@ def main() -> None:
     parser.add_argument("--storage-only", action="store_true", help="only reading a batch, by storage")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    for flag in ("plain_only", "cher_only", "storage_only"):
+        if getattr(args, flag):
+            left_out("the figures outside its part", f"--{flag.replace('_', '-')}")
     if args.storage_only:
         storage_read(args.rounds)
         return
@@ -519,8 +524,8 @@ def main() -> None:
         plain_buffer_speed(args.rounds, recorded=True)
         recorded_search_cost(args.rounds)
     else:  # an output: benchmarks/record_goals.py writes it from a run's replay files
-        print(f"plain buffer with a recorded buffer's achieved goals: skipped, {RECORDED_GOALS.relative_to(ROOT)} "
-              "is missing (benchmarks/record_goals.py writes it)")
+        missing_input("plain buffer with a recorded buffer's achieved goals", RECORDED_GOALS,
+                      "benchmarks/record_goals.py writes it")
 
 
 if __name__ == "__main__":
