@@ -1,4 +1,4 @@
-"""DDPG update cost: :class:`gchgg.agent.DDPGAgent` vs the same update written in plain torch.
+"""DDPG update cost: :class:`gchgg.ddpg.agent.DDPGAgent` vs the same update written in plain torch.
 
 Prints seconds per update (batch 256, push_new sizes: obs 25, goal 3, action 3) for the agent —
 which reads a TensorDict batch and runs its loss module and target update — and for
@@ -11,11 +11,11 @@ of the training-iteration floor (``benchmarks/iteration.py`` may import it).
                                       [--min-features 16] [--compile] [--profile]
 
 Both are timed, in rotating rounds, beside the same agent with ``gradients="fused"``
-(:mod:`gchgg.fused_update`: the same losses and gradients differentiated by hand), which also says
+(:mod:`gchgg.fast.fused_update`: the same losses and gradients differentiated by hand), which also says
 whether its networks still equal the autograd agent's bit for bit after every round's updates.
 All three compare with the agent on torch's own BLAS (``matmul="default"``). The script then times that
 update against the faster one, the same agent with its layers on oneDNN (``matmul="onednn"``,
-:mod:`gchgg.linear`), and that one against the same with bfloat16 products (``precision="bfloat16"``,
+:mod:`gchgg.fast.linear`), and that one against the same with bfloat16 products (``precision="bfloat16"``,
 on CPUs with native bfloat16), in alternating rounds, and prints how far the two agree on one fixed batch
 (losses and gradients, relative to their largest entry) and how far their weights and actions drift
 apart over the run's updates, beside the drift of a torch-BLAS twin fed each batch in reverse row
@@ -24,10 +24,10 @@ times the same agent with ``torch.compile`` on its loss (a candidate that lost) 
 Last, the oneDNN update in float32 and in bfloat16, each by autograd and with ``gradients="fused"``,
 in rotating rounds beside the bare float32 update (``fused / bare fp32``: below 1 is an update faster
 than the fp32 floor's); then the training default's products in the update run eagerly
-(``gradients=fused``) against a twin with ``gradients=compiled`` (:class:`gchgg.fused_update.FusedDDPGUpdate`
+(``gradients=fused``) against a twin with ``gradients=compiled`` (:class:`gchgg.fast.fused_update.FusedDDPGUpdate`
 compiled by ``torch.compile``, what ``gradients=auto`` runs there): the seconds of its first update, which
 compiles, their agreement on one fixed batch and their drift; then the training default's update with its
-optimisers stepped by :func:`gchgg.adam_step.adam_step` against the same with ``Adam.step``, and whether
+optimisers stepped by :func:`gchgg.fast.adam_step.adam_step` against the same with ``Adam.step``, and whether
 the two stay equal; ``--profile`` prints both updates' top operators.
 """
 
@@ -48,9 +48,9 @@ import torch  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torch import nn  # noqa: E402
 
-from gchgg.agent import DDPGAgent  # noqa: E402
-from gchgg.fused_update import compiler_found  # noqa: E402
-from gchgg.linear import MIN_FEATURES, bf16_available, products_in, use_onednn  # noqa: E402
+from gchgg.ddpg.agent import DDPGAgent  # noqa: E402
+from gchgg.fast.fused_update import compiler_found  # noqa: E402
+from gchgg.fast.linear import MIN_FEATURES, bf16_available, products_in, use_onednn  # noqa: E402
 
 
 def _mlp(in_features: int, out_features: int, hidden: int = 256, depth: int = 3) -> nn.Sequential:
@@ -66,7 +66,7 @@ class BareDDPG:
 
     Args:
         obs_dim, goal_dim, action_dim: sizes.
-        gamma, polyak, target_update_every, action_l2: as in :class:`gchgg.agent.DDPGAgent`.
+        gamma, polyak, target_update_every, action_l2: as in :class:`gchgg.ddpg.agent.DDPGAgent`.
     """
 
     def __init__(self, obs_dim: int, goal_dim: int, action_dim: int, gamma: float = 0.98, polyak: float = 0.95,
@@ -145,7 +145,7 @@ def main() -> None:
                         help="also time the agent with torch.compile on its loss (the candidate faster update)")
     parser.add_argument("--min-features", type=int, default=MIN_FEATURES,
                         help="layers narrower than this stay on torch BLAS in the oneDNN agent "
-                             "(gchgg.linear.MIN_FEATURES)")
+                             "(gchgg.fast.linear.MIN_FEATURES)")
     parser.add_argument("--profile", action="store_true", help="also print the update's top operators (torch.profiler)")
     args = parser.parse_args()
     if args.threads is not None:
@@ -192,7 +192,7 @@ def main() -> None:
     print(f"agent (TorchRL, TensorDict batch): {statistics.median(times['agent']) * 1e3:.3f} ms/update")
     print(f"bare plain-torch DDPG update:      {statistics.median(times['bare']) * 1e3:.3f} ms/update")
     print(f"ratio agent / bare (median of rounds): {ratio('agent', 'bare'):.3f}")
-    print(f"agent with gradients=fused (gchgg.fused_update): {statistics.median(times['fused']) * 1e3:.3f} ms/update; "
+    print(f"agent with gradients=fused (fast.fused_update): {statistics.median(times['fused']) * 1e3:.3f} ms/update; "
           f"fused / autograd agent {ratio('fused', 'agent'):.3f}, fused / bare {ratio('fused', 'bare'):.3f}; "
           f"networks equal to the autograd agent's after {20 + args.rounds * args.updates} updates: {same}")
     onednn = copy.deepcopy(agent)  # same weights, normalisers and optimiser state
@@ -334,7 +334,7 @@ def fused_onednn(onednn: DDPGAgent, bare: BareDDPG, batches, plain, rounds: int,
 
 def adam_steps(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
     """The training default's update (``matmul``, ``precision`` and ``gradients`` auto) with its optimisers
-    stepped by :func:`gchgg.adam_step.adam_step` against a twin whose optimisers take ``Adam.step`` (a no-op
+    stepped by :func:`gchgg.fast.adam_step.adam_step` against a twin whose optimisers take ``Adam.step`` (a no-op
     step hook on each makes ``adam_step`` leave the step to it), in alternating rounds; and whether the
     twins' networks and optimiser states are still equal after them."""
     twins = []
@@ -348,7 +348,7 @@ def adam_steps(onednn: DDPGAgent, batches, rounds: int, updates: int) -> None:
     times = _alternate(direct, stepped, batches, rounds, updates)
     same = all(torch.equal(x, y) for x, y in zip(_flat(direct.state_dict()), _flat(stepped.state_dict()), strict=True))
     ratio = statistics.median(a / b for a, b in zip(*times, strict=True))
-    print(f"Adam stepped by gchgg.adam_step ({direct.precision}, gradients={direct.gradients}): "
+    print(f"Adam stepped by gchgg.fast.adam_step ({direct.precision}, gradients={direct.gradients}): "
           f"{statistics.median(times[0]) * 1e3:.3f} ms/update against {statistics.median(times[1]) * 1e3:.3f} with "
           f"Adam.step: {ratio:.3f}; networks and optimiser states equal after {rounds * updates} updates: {same}")
 
@@ -425,7 +425,7 @@ def compiled_update(agent: DDPGAgent, batches, rounds: int, updates: int) -> Non
 
 def act_one(agent: DDPGAgent, rounds: int, calls: int = 500) -> None:
     """``act`` on one observation (the per-episode loop's rollout step): the actor's modules against
-    :class:`~gchgg.agent.SmallBatchActor`, the path ``act`` takes below ``MIN_BATCH`` rows (same actions)."""
+    :class:`~gchgg.ddpg.agent.SmallBatchActor`, the path ``act`` takes below ``MIN_BATCH`` rows (same actions)."""
     g = torch.Generator().manual_seed(1)
     observation, goal = torch.randn(1, agent.obs_dim, generator=g), torch.randn(1, agent.goal_dim, generator=g)
     paths = {"modules": agent.actor, "SmallBatchActor": agent._small_batch_actor}

@@ -28,8 +28,8 @@ import torch  # noqa: E402
 def fresh_run(task: str, folder: Path) -> Path:
     """A folder with the ``policy.pt`` of an untrained agent of the default size for ``task``."""
     import envs
-    from gchgg import checkpoint
-    from gchgg.agent import DDPGAgent
+    from gchgg.ddpg.agent import DDPGAgent
+    from gchgg.run import checkpoint
 
     env = envs.make(task, num_envs=1, seed=0)
     agent = DDPGAgent(env.obs_dim, 3, env.action_dim, generator=torch.Generator().manual_seed(0))
@@ -59,7 +59,7 @@ def main() -> None:
     sys.path.insert(0, str(ROOT / "examples"))
     from run_policy import load_policy
 
-    from gchgg.export import export
+    from gchgg.analysis.export import export
 
     with tempfile.TemporaryDirectory() as tmp:
         run_dir = Path(args.run_dir) if args.run_dir else fresh_run(args.task, Path(tmp))

@@ -30,7 +30,7 @@ two gchgg runs in two processes at once against one alone, each as training runs
 (``--side-by-side``).
 
 The networks' products run on ``--matmul`` (default ``auto``, the trainer's default: oneDNN where
-measured faster, ``gchgg.linear.ONEDNN_FASTER``, or for bfloat16 products), the bare updates of the
+measured faster, ``gchgg.fast.linear.ONEDNN_FASTER``, or for bfloat16 products), the bare updates of the
 floor too; the trainers' updates in the training default ``precision=auto`` (bfloat16 where oneDNN
 computes it natively) with ``gradients=auto`` (differentiated by hand, and compiled by ``torch.compile``
 where the products are bfloat16 on oneDNN and a C++ compiler is found; the header says which), the
@@ -65,13 +65,13 @@ from agent_update import BareDDPG  # noqa: E402
 from hydra import compose, initialize_config_dir  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg import checkpoint  # noqa: E402
-from gchgg.agent import DDPGAgent  # noqa: E402
-from gchgg.evaluator import BackgroundEvaluator  # noqa: E402
-from gchgg.linear import MATMUL_BACKENDS, resolve_matmul, resolve_precision, use_onednn  # noqa: E402
-from gchgg.metrics import IterationStats  # noqa: E402
-from gchgg.parts import make_env  # noqa: E402
-from gchgg.rollout import collect  # noqa: E402
+from gchgg.ddpg.agent import DDPGAgent  # noqa: E402
+from gchgg.fast.linear import MATMUL_BACKENDS, resolve_matmul, resolve_precision, use_onednn  # noqa: E402
+from gchgg.run import checkpoint  # noqa: E402
+from gchgg.run.evaluator import BackgroundEvaluator  # noqa: E402
+from gchgg.run.metrics import IterationStats  # noqa: E402
+from gchgg.run.parts import make_env  # noqa: E402
+from gchgg.run.rollout import collect  # noqa: E402
 from gchgg.train import BATCHES_AHEAD, CONF_DIR, Trainer  # noqa: E402
 
 PHASES = ("goals", "rollout", "store", "update")  # what an iteration costs; eval and checkpoint apart
@@ -258,7 +258,7 @@ def where_it_goes(updates: int, threads: int, matmul: str = "auto", rounds: int 
 def rollout_split(trainer: Trainer, rounds: int) -> None:
     """The iteration's episodes as it collects them (the policy acting between the physics steps), and the
     same episodes through ``agent.act`` instead of the trainer's
-    :meth:`~gchgg.agent.DDPGAgent.rollout_policy` and with the policy's calls timed (each way first in
+    :meth:`~gchgg.ddpg.agent.DDPGAgent.rollout_policy` and with the policy's calls timed (each way first in
     turn); then the same episodes' physics replayed bare (the same resets and actions, open loop: the same
     trajectories, checked equal) and the policy's calls alone on the recorded observations. What the
     closed loop costs beyond the last two is each slowing the other down."""
@@ -331,7 +331,7 @@ def update_split(trainer: Trainer, updates: int, rounds: int) -> None:
     """``updates`` updates as the trainer runs them (:meth:`Trainer.updates`: groups of batches drawn, then
     their updates, then their diagnostics) and with one draw before each update, each first in turn; then
     ``updates`` samples, ``updates`` DDPG updates on them and their diagnostics
-    (:class:`gchgg.metrics.IterationStats`), each timed alone."""
+    (:class:`gchgg.run.metrics.IterationStats`), each timed alone."""
     agent, buffer = trainer.agent, trainer.buffer
 
     def one_by_one() -> None:  # one draw before each update, its diagnostics after it
@@ -578,7 +578,7 @@ def main() -> None:
                         help="chunk counts C timed for gchgg")
     parser.add_argument("--algos", nargs="*", default=["her", "ghgg", "gchgg"], help="algorithms timed at C = 50")
     parser.add_argument("--matmul", default="auto", choices=MATMUL_BACKENDS,
-                        help="the networks' products (gchgg.linear)")
+                        help="the networks' products (gchgg.fast.linear)")
     parser.add_argument("--overlap", type=int, default=3, metavar="N",
                         help="iterations timed with in-line, background and no evaluation (0: skip)")
     parser.add_argument("--side-by-side", type=int, default=3, metavar="N",

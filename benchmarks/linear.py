@@ -1,15 +1,15 @@
-"""One linear layer on torch's BLAS against oneDNN (:mod:`gchgg.linear`), per layer shape and batch size.
+"""One linear layer on torch's BLAS against oneDNN (:mod:`gchgg.fast.linear`), per layer shape and batch size.
 
 For the agent's three kinds of layer (input 31 → 256, hidden 256 → 256, output 256 → 3) and batch
 sizes from one row (acting in one env) to 256 (an update), prints the microseconds of the forward
 product ``x·Wᵀ + b``, of the input gradient ``∂y·W`` and of the weight gradient ``∂yᵀ·x``, each on
 torch's BLAS (``F.linear`` / ``mm``, MKL on x86) and on oneDNN, and their ratio (> 1: oneDNN
 faster). Both are timed in alternating rounds of one run, the ratio is the median of the rounds'.
-These figures choose :data:`gchgg.linear.MIN_BATCH` and :data:`gchgg.linear.MIN_FEATURES`.
+These figures choose :data:`gchgg.fast.linear.MIN_BATCH` and :data:`gchgg.fast.linear.MIN_FEATURES`.
 
 Where oneDNN computes bfloat16 natively, it then times the backward's two products in bfloat16 at
-batch 256 as :func:`gchgg.linear.onednn_linear` computes them on the transposed views (it copies each
-transposed operand contiguous first) against :func:`gchgg.linear.onednn_mm` (``torch.mm``: oneDNN's
+batch 256 as :func:`gchgg.fast.linear.onednn_linear` computes them on the transposed views (it copies each
+transposed operand contiguous first) against :func:`gchgg.fast.linear.onednn_mm` (``torch.mm``: oneDNN's
 matmul on the strided operands), whether the two give the same values, and their ratio (< 1:
 ``onednn_mm`` faster).
 
@@ -30,7 +30,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__)))) 
 import torch
 import torch.nn.functional as F
 
-from gchgg.linear import MIN_BATCH, MIN_FEATURES, bf16_available, onednn_available, onednn_linear, onednn_mm
+from gchgg.fast.linear import MIN_BATCH, MIN_FEATURES, bf16_available, onednn_available, onednn_linear, onednn_mm
 
 SHAPES = ((31, 256), (256, 256), (256, 3))  # (in, out): the input, hidden and output layers
 BATCHES = (1, 8, 16, 32, 64, 256)

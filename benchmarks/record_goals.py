@@ -1,6 +1,6 @@
 """Achieved goals of a recorded run, for the samplers' benchmark: ``benchmarks/data/<task>_achieved_goals.npy``.
 
-Reads the replay files (:mod:`gchgg.replay_log`) a training run wrote for its first iterations and
+Reads the replay files (:mod:`gchgg.run.replay_log`) a training run wrote for its first iterations and
 saves ``--size`` achieved goals drawn uniformly (without replacement) from their rows, float32
 ``[size, 3]``. ``benchmarks/samplers.py`` samples a plain buffer's goals and targets from it: goals
 as a learning agent's buffer holds them early on, clumped where an object rests.
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gchgg import replay_log
+from gchgg.run import replay_log
 
 ROOT = Path(__file__).resolve().parents[1]
 

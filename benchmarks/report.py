@@ -113,8 +113,8 @@ def _kind() -> str:
 
 
 def _capability() -> str:
-    """The CPU capability torch's kernels run at (``AVX512``, ``AVX2``, …): :func:`gchgg.linear.cpu_capability`."""
-    from gchgg.linear import cpu_capability
+    """The CPU capability torch's kernels run at (``AVX512``, ``AVX2``, …): :func:`gchgg.fast.linear.cpu_capability`."""
+    from gchgg.fast.linear import cpu_capability
 
     return cpu_capability()
 

@@ -11,7 +11,7 @@ Prints, in one run:
   default ``draw_ahead=8``: averaged over the samples, as in training) and CHER greedy,
   each as a ratio to uniform (medians over interleaved rounds: the machine is shared and noisy);
 * reading a batch as training does (uniform ``buffer.sample()`` of 256 with ``GoalToNext``) from a
-  ``LazyTensorStorage`` against :class:`gchgg.storage.FieldStorage`, which the trainer's buffer uses;
+  ``LazyTensorStorage`` against :class:`gchgg.fast.storage.FieldStorage`, which the trainer's buffer uses;
 * the first EBP sample after a write of one episode: the written rows' energies read against all rows';
 * how often the curriculum's nearest-neighbour shortlist could not prove a goal's nearest neighbour
   (more pairs are then read), and that it always equals the all-pairs value;
@@ -50,6 +50,7 @@ from tensordict import TensorDict  # noqa: E402
 from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer  # noqa: E402
 
 import envs  # noqa: E402
+from gchgg.fast.storage import FieldStorage  # noqa: E402
 from gchgg.graph import EuclideanMetric, GoalGraph  # noqa: E402
 from gchgg.samplers import (  # noqa: E402
     AdaptiveTradeoff,
@@ -58,7 +59,6 @@ from gchgg.samplers import (  # noqa: E402
     GraphCurriculumSampler,
     nearest_neighbour_distances,
 )
-from gchgg.storage import FieldStorage  # noqa: E402
 from gchgg.transforms import EpisodeEnergy, GoalToNext, HindsightRelabel  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -211,7 +211,7 @@ def speed(graph: GoalGraph, episodes: int, rounds: int) -> None:
 
 def storage_read(rounds: int, episodes: int = 1000, repeats: int = 50) -> None:
     """Seconds per uniform ``buffer.sample()`` of 256 as training reads batches (``GoalToNext`` applied),
-    from a ``LazyTensorStorage`` against :class:`gchgg.storage.FieldStorage` (the same push_new-shaped
+    from a ``LazyTensorStorage`` against :class:`gchgg.fast.storage.FieldStorage` (the same push_new-shaped
     rows in each), interleaved rounds."""
     steps = envs.geometry("push_new").episode_length
     rows = episodes * (K_HER + 1) * steps
@@ -458,7 +458,7 @@ def recorded_search_cost(rounds: int, pool: int = 64) -> None:
     neighbour nearer than the search's tolerance (no straight-line bound can prove those)."""
     from scipy.spatial import cKDTree
 
-    from gchgg.samplers.nearest import _RELATIVE_TOLERANCE, NearestNeighbours
+    from gchgg.fast.nearest import _RELATIVE_TOLERANCE, NearestNeighbours
 
     generator = torch.Generator().manual_seed(6)
     center, half = (torch.tensor(v) for v in envs.geometry("push_new").field)

@@ -34,8 +34,8 @@ import torch  # noqa: E402
 from omegaconf import OmegaConf  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 
-from gchgg.agent import DDPGAgent  # noqa: E402
-from gchgg.subnormal import subnormal_share  # noqa: E402
+from gchgg.ddpg.agent import DDPGAgent  # noqa: E402
+from gchgg.fast.subnormal import subnormal_share  # noqa: E402
 
 SUBNORMAL = 1e-39  # below float32's smallest normal number
 
@@ -50,7 +50,7 @@ def from_run(folder: Path, work: Path, updates: int) -> tuple[DDPGAgent, list[Te
     """The agent of the run in ``folder`` as its checkpoint left it, batches from its buffer, and a description."""
     from hydra import compose, initialize_config_dir
 
-    from gchgg import checkpoint
+    from gchgg.run import checkpoint
     from gchgg.train import CHECKPOINT, CONF_DIR, REPLAY, Trainer
 
     overrides = folder / ".hydra" / "overrides.yaml"

@@ -55,9 +55,9 @@ from omegaconf import OmegaConf  # noqa: E402
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg import replay_log  # noqa: E402
-from gchgg.builders import make_metric, make_sampler  # noqa: E402
-from gchgg.config import CurriculumConfig, GraphConfig  # noqa: E402
+from gchgg.run import replay_log  # noqa: E402
+from gchgg.run.builders import make_metric, make_sampler  # noqa: E402
+from gchgg.run.config import CurriculumConfig, GraphConfig  # noqa: E402
 
 STATS = ("own goal", "reward 0", "reward 0 (own goal)", "goal > 2 cm up", "goal > 10 cm up", "reward 0, goal > 2 cm up",
          "goal to target")

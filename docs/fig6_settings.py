@@ -46,8 +46,8 @@ from omegaconf import OmegaConf  # noqa: E402
 from torchrl.data import TensorDictReplayBuffer  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg.builders import make_metric, make_sampler, make_tradeoff  # noqa: E402
-from gchgg.config import CurriculumConfig, GraphConfig  # noqa: E402
+from gchgg.run.builders import make_metric, make_sampler, make_tradeoff  # noqa: E402
+from gchgg.run.config import CurriculumConfig, GraphConfig  # noqa: E402
 
 DEFAULT = {"eta": 1000.0, "sigma": 0.3}
 SETTINGS = (  # (sweep, value, η, σ, metric); the default of every sweep first

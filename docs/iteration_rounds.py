@@ -5,7 +5,7 @@
 Reads the line ``everything on / fp32 floor = X (...; the median of N rounds' ratios: a, b, ...)`` from each
 given output of ``benchmarks/iteration.py`` (default: the runs of the library code of d4117cc in
 ``docs/benchmark_logs/``) and prints each run's median and the rounds' pooled median with a 95 % percentile
-bootstrap interval over the rounds (:func:`gchgg.stats.median_interval`, 10,000 resamples, seed 0). The
+bootstrap interval over the rounds (:func:`gchgg.analysis.stats.median_interval`, 10,000 resamples, seed 0). The
 rounds of one run are not independent draws (they share a trainer and the minutes they ran in), so the
 interval is a lower bound on the uncertainty, not a test.
 """
@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gchgg.stats import median_interval
+from gchgg.analysis.stats import median_interval
 
 LOGS = Path(__file__).resolve().parent / "benchmark_logs"
 SAME_CODE = ("d4117cc.txt", "f88d517-replication.txt", "4221258.txt")  # the library code of d4117cc
-REPS = 10_000  # bootstrap resamples (generator seeded 0: gchgg.stats' default)
+REPS = 10_000  # bootstrap resamples (generator seeded 0: gchgg.analysis.stats' default)
 LINE = re.compile(r"everything on / fp32 floor = ([0-9.]+) .*rounds' ratios: ([0-9., ]+)\)")
 
 

@@ -22,7 +22,7 @@ def main() -> None:
     import torch
 
     from envs import TASKS, scripted
-    from gchgg.evaluate import record
+    from gchgg.analysis.evaluate import record
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)

@@ -2,7 +2,7 @@
 
     python docs/robustness.py LABEL=RUN_DIR ... [--sigmas 0 0.005 0.01 0.02] [--episodes 100] [--seed 0]
 
-Each run's ``policy.pt`` is evaluated with ``gchgg.evaluate`` (deterministic episodes on target
+Each run's ``policy.pt`` is evaluated with ``gchgg.analysis.evaluate`` (deterministic episodes on target
 goals, the same episodes for every σ and run) with N(0, σ²) noise on the observed object position
 (the grip in reach), and a Markdown table of success rates is printed: one row per run, one
 column per σ.
@@ -21,8 +21,8 @@ os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
 
 
 def main() -> None:
-    from gchgg.agent import load_policy
-    from gchgg.evaluate import evaluate_policy, load_policy_file
+    from gchgg.analysis.evaluate import evaluate_policy, load_policy_file
+    from gchgg.ddpg.agent import load_policy
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", help="LABEL=RUN_DIR pairs")

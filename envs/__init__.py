@@ -26,7 +26,7 @@ def task_seeds(seed: int | None, num_envs: int) -> list[int | None]:
 
 def episode_seeds(seed: int, episodes: int, num_envs: int = 100) -> list[int]:
     """Task seeds of ``episodes`` episodes run in batches of ``num_envs`` simulations, batch ``b``
-    seeded ``seed + b`` (as ``gchgg.evaluate`` runs them): a standalone controller that runs episode
+    seeded ``seed + b`` (as ``gchgg.analysis.evaluate`` runs them): a standalone controller that runs episode
     ``j`` with ``envs.load(name, seed=episode_seeds(seed, N)[j])`` sees the same goals and objects.
 
     >>> (episode_seeds(0, 3, num_envs=2)[:2] == task_seeds(0, 2),

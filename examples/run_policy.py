@@ -2,12 +2,12 @@
 
     python examples/run_policy.py push_new.onnx [--episodes 100] [--seed 0]
 
-Loads the file written by ``python -m gchgg.export`` (ONNX through onnxruntime, or TorchScript
+Loads the file written by ``python -m gchgg.analysis.export`` (ONNX through onnxruntime, or TorchScript
 through plain torch) and its metadata (``FILE.json``: task, observation layout, action scale,
 control rate), then runs a minimal observation -> action loop at the policy's control rate for
 ``--episodes`` episodes. The simulated task from ``envs`` (dm_control) stands in for the robot:
 episode ``j`` uses task seed ``envs.episode_seeds(seed, episodes)[j]``, the same episodes
-``python -m gchgg.evaluate RUN --episodes N --seed S`` runs, so the two success rates can be compared.
+``python -m gchgg.analysis.evaluate RUN --episodes N --seed S`` runs, so the two success rates can be compared.
 Prints the success rate (``is_success`` at the last step) and the policy's median latency per step.
 """
 
@@ -63,7 +63,7 @@ def main() -> None:
     env = envs.load(task, seed=0, threshold=meta["success_threshold_m"])
     successes, latencies = [], []
     for seed in envs.episode_seeds(args.seed, args.episodes):
-        env.task.random.seed(seed)  # this episode's goal and object, as gchgg.evaluate draws them
+        env.task.random.seed(seed)  # this episode's goal and object, as gchgg.analysis.evaluate draws them
         time_step = env.reset()
         while not time_step.last():
             observation = time_step.observation["observation"].astype(np.float32)[None]

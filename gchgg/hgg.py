@@ -54,9 +54,9 @@ import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
 
-from gchgg.agent import DDPGConfig
+from gchgg.common.validation import check_choice, check_number
+from gchgg.ddpg.agent import DDPGConfig
 from gchgg.graph import Metric
-from gchgg.validation import check_choice, check_number
 
 __all__ = ["GoalGeneration", "HGGGoalGenerator", "TrajectoryPool", "estimate_max_distance"]
 
@@ -285,7 +285,7 @@ class HGGGoalGenerator:
         pool: the trajectory pool; by default ``TrajectoryPool(1000, 0.01)``.
         c: weight of the initial-state distance in eq. 6 (paper default 3.0).
         L: Lipschitz constant of eq. 5 (paper default 5.0).
-        gamma: discount factor of the value function (default: the agent's, :class:`~gchgg.agent.DDPGConfig`),
+        gamma: discount factor of the value function (default: the agent's, :class:`~gchgg.ddpg.agent.DDPGConfig`),
             for its clip range and scaling.
         stop_threshold: switch to plain HER once the fraction of intermediate goals within
             ``success_threshold`` of some target exceeds this (``None``: never; the original's

@@ -13,14 +13,14 @@ One iteration, top to bottom (``Trainer.iteration_step``), as the authors' ``lea
    the trade-off hears how many episodes are done;
 4. the iteration's trajectories into the goal generator's pool;
 5. evaluation on target goals, a ``metrics.csv`` row (with the diagnostics the README lists), an
-   atomic checkpoint: the iterations' new replay rows into ``replay/`` (:mod:`gchgg.replay_log`),
+   atomic checkpoint: the iterations' new replay rows into ``replay/`` (:mod:`gchgg.run.replay_log`),
    then ``checkpoint.pt`` with everything else.
 
 All algorithm logic lives in the parts (``envs``, ``gchgg.graph``, ``gchgg.hgg``, ``gchgg.samplers``,
-``gchgg.transforms``, ``gchgg.agent``), which :mod:`gchgg.parts` builds from the config; this module
-runs the loop over them (evaluations and the stop rule: :mod:`gchgg.evaluator`; timings and the
-metrics row: :mod:`gchgg.metrics`; checkpoints: :mod:`gchgg.checkpoint`; what a run records about
-itself: :mod:`gchgg.run_info`).
+``gchgg.transforms``, ``gchgg.ddpg.agent``), which :mod:`gchgg.run.parts` builds from the config; this module
+runs the loop over them (evaluations and the stop rule: :mod:`gchgg.run.evaluator`; timings and the
+metrics row: :mod:`gchgg.run.metrics`; checkpoints: :mod:`gchgg.run.checkpoint`; what a run records about
+itself: :mod:`gchgg.run.run_info`).
 """
 
 from __future__ import annotations
@@ -42,18 +42,18 @@ from tensordict import TensorDict  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
-from gchgg import checkpoint, config, fork, metrics  # noqa: E402
-from gchgg.evaluator import Evaluations, EvaluationSchedule  # noqa: E402
-from gchgg.parts import Parts, make_parts  # noqa: E402
-from gchgg.replay_log import ReplayLog  # noqa: E402
-from gchgg.rollout import collect  # noqa: E402
-from gchgg.run_info import open_loggers, requeued, startup_record  # noqa: E402
+from gchgg.run import checkpoint, config, fork, metrics  # noqa: E402
+from gchgg.run.evaluator import Evaluations, EvaluationSchedule  # noqa: E402
+from gchgg.run.parts import Parts, make_parts  # noqa: E402
+from gchgg.run.replay_log import ReplayLog  # noqa: E402
+from gchgg.run.rollout import collect  # noqa: E402
+from gchgg.run.run_info import open_loggers, requeued, startup_record  # noqa: E402
 
 log = logging.getLogger(__name__)
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 CHECKPOINT = "checkpoint.pt"
 POLICY = "policy.pt"  # the actor alone, beside each checkpoint: what evaluation and export load
-REPLAY = "replay"  # folder of the replay files (gchgg.replay_log): each iteration's stored rows, once
+REPLAY = "replay"  # folder of the replay files (gchgg.run.replay_log): each iteration's stored rows, once
 METRICS = "metrics.csv"
 BATCHES_AHEAD = 20  # batches drawn before their updates (Trainer.updates): one chunk's at the defaults
 
@@ -64,7 +64,7 @@ class Trainer:
     Args:
         cfg: the composed config: the loop's settings (``train``, ``eval``, ``checkpoint``, ``logging``).
         run_dir: folder of ``metrics.csv``, ``checkpoint.pt``, the replay files and the saved config.
-        parts: what the run trains with (default: :func:`gchgg.parts.make_parts` of ``cfg``).
+        parts: what the run trains with (default: :func:`gchgg.run.parts.make_parts` of ``cfg``).
     """
 
     def __init__(self, cfg: DictConfig, run_dir: Path, parts: Parts | None = None) -> None:
@@ -217,7 +217,7 @@ class Trainer:
 
     def state_dict(self) -> dict:
         """The loop's state (iteration, history, evaluations in flight, the replay files' manifest) and the
-        parts' (:func:`gchgg.checkpoint.parts_state`): everything but the replay rows."""
+        parts' (:func:`gchgg.run.checkpoint.parts_state`): everything but the replay rows."""
         return {"run": self.identity(), "iteration": self.iteration, "env_steps": self.env_steps,
                 "history": self.history, "replay": self.replay_log.manifest(), **self.evaluations.state_dict(),
                 **checkpoint.parts_state(self.parts, self.evaluations.env_before)}
@@ -256,7 +256,7 @@ class Trainer:
 def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
     """Trains with ``cfg`` in ``run_dir``, resuming from its checkpoint when ``cfg.resume`` or when
     the job was requeued by SLURM (:func:`requeued`). With ``init_from=<run folder>`` a new run starts
-    from that run's checkpoint (:mod:`gchgg.fork`: its metrics rows, then this run's); once it has
+    from that run's checkpoint (:mod:`gchgg.run.fork`: its metrics rows, then this run's); once it has
     its own checkpoint, ``resume=true`` continues it from there."""
     run_dir.mkdir(parents=True, exist_ok=True)
     path = run_dir / CHECKPOINT

@@ -1,4 +1,4 @@
-"""gchgg.adam_step: the fused Adam step called directly gives what Adam.step gives, and falls back where it must."""
+"""fast.adam_step: the fused Adam step called directly gives what Adam.step gives, and falls back where it must."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 import torch
 from torch import nn
 
-from gchgg.adam_step import adam_step, plain_fused_adam
+from gchgg.fast.adam_step import adam_step, plain_fused_adam
 
 
 def _net(generator: torch.Generator) -> nn.Sequential:

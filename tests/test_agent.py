@@ -1,4 +1,4 @@
-"""Tests of gchgg.agent: critic target, actor loss, target updates, normalisers, exploration,
+"""Tests of gchgg.ddpg.agent: critic target, actor loss, target updates, normalisers, exploration,
 checkpoints, errors and a small learning check."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from gchgg.agent import DDPGAgent, HindsightDDPGLoss, RunningNormalizer, make_ddpg_networks
+from gchgg.ddpg.agent import DDPGAgent, HindsightDDPGLoss, RunningNormalizer, make_ddpg_networks
 
 OBS, GOAL, ACT = 6, 3, 2
 
@@ -476,8 +476,8 @@ def test_ddpg_learns_the_toy_value_with_reference_networks():
 
 def test_small_batch_actor_acts_as_the_module_bit_for_bit_after_updates_and_loads():
     """act() on fewer than MIN_BATCH rows skips the modules (SmallBatchActor); same actions, always."""
-    from gchgg.agent import DDPGAgent, DDPGConfig
-    from gchgg.linear import MIN_BATCH
+    from gchgg.ddpg.agent import DDPGAgent, DDPGConfig
+    from gchgg.fast.linear import MIN_BATCH
 
     g = torch.Generator().manual_seed(0)
     agent = DDPGAgent(25, 3, 4, DDPGConfig(hidden=(64, 64)), generator=torch.Generator().manual_seed(1))
@@ -507,7 +507,7 @@ def test_small_batch_actor_acts_as_the_module_bit_for_bit_after_updates_and_load
 def test_rollout_policy_acts_as_act_with_exploration_call_for_call():
     """The rollout's policy gives act(explore=True)'s actions and draws, also after the statistics or a clip
     changed under it, for other shapes, and raises what act raises."""
-    from gchgg.agent import DDPGAgent, DDPGConfig
+    from gchgg.ddpg.agent import DDPGAgent, DDPGConfig
 
     agent = DDPGAgent(25, 3, 3, DDPGConfig(), generator=torch.Generator().manual_seed(0))
     data = torch.Generator().manual_seed(1)
@@ -544,7 +544,7 @@ def test_rollout_policy_acts_as_act_with_exploration_call_for_call():
 def test_exploring_one_row_is_eq_22_with_the_same_draws(random_eps):
     """act(explore=True) on one row (the per-episode loop's branch) gives what eq. 22 gives, draw for draw,
     including where the coin equals random_eps rounded to float32 (0.7 rounds down)."""
-    from gchgg.agent import DDPGAgent, DDPGConfig
+    from gchgg.ddpg.agent import DDPGAgent, DDPGConfig
 
     agent = DDPGAgent(25, 3, 4, DDPGConfig(hidden=(32, 32)), generator=torch.Generator().manual_seed(0))
     agent.random_eps = random_eps  # a setting changed after construction is followed
@@ -569,7 +569,7 @@ def test_exploring_one_row_is_eq_22_with_the_same_draws(random_eps):
 
 def test_small_batch_actor_with_unlike_normalisers_keeps_their_own_standardisation():
     """Normalisers that clip differently are not joined; still the module's actions."""
-    from gchgg.agent import DDPGAgent, DDPGConfig
+    from gchgg.ddpg.agent import DDPGAgent, DDPGConfig
 
     agent = DDPGAgent(25, 3, 3, DDPGConfig(hidden=(32, 32)), generator=torch.Generator().manual_seed(0))
     g = torch.Generator().manual_seed(1)

@@ -3,7 +3,8 @@
 import pytest
 import torch
 
-from gchgg import checkpoint
+from gchgg.common import files
+from gchgg.run import checkpoint
 
 
 def test_round_trip_preserves_values(tmp_path):
@@ -49,7 +50,7 @@ def test_replay_log_keeps_the_files_with_live_rows_and_restores_the_storage(tmp_
     from tensordict import TensorDict
     from torchrl.data import LazyTensorStorage
 
-    from gchgg.replay_log import ReplayLog
+    from gchgg.run.replay_log import ReplayLog
 
     storage, log = LazyTensorStorage(6), ReplayLog(tmp_path / "replay", capacity=6)
     writes = [(0, [0, 1, 2]), (1, [3, 4, 5]), (2, [0, 1]), (3, [2, 0])]  # iteration 0's rows are all overwritten
@@ -76,7 +77,7 @@ def test_replay_files_written_before_the_goal_rename_restore_under_todays_names(
     from tensordict import TensorDict
     from torchrl.data import LazyTensorStorage
 
-    from gchgg import replay_log
+    from gchgg.run import replay_log
 
     index = torch.arange(3)
     old = TensorDict({"desired_goal": torch.zeros(3, 3), "target_goal": torch.ones(3, 3),
@@ -105,7 +106,7 @@ def test_a_failing_rename_leaves_the_previous_checkpoint_loadable_and_no_tempora
     def failing_replace(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr(checkpoint.os, "replace", failing_replace)
+    monkeypatch.setattr(files.os, "replace", failing_replace)
     with pytest.raises(OSError, match="disk full"):
         checkpoint.save({"iteration": 2}, path)
     monkeypatch.undo()

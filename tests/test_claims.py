@@ -1,4 +1,4 @@
-"""The claims table (gchgg.claims): each verdict rule on synthetic runs, and the committed table up to date."""
+"""The claims table (gchgg.analysis.claims): each verdict rule on synthetic runs, and the committed table up to date."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from gchgg import claims
+from gchgg.analysis import claims
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -120,10 +120,10 @@ def test_a_claim_of_an_unknown_kind_or_without_its_figure_is_an_error(tmp_path):
 
 
 def test_the_committed_claims_table_is_the_commands_output_and_the_readme_quotes_its_verdicts():
-    """After adding runs, regenerate it: python -m gchgg.claims docs/results --out docs/results/claims.md"""
+    """After adding runs, regenerate it: python -m gchgg.analysis.claims docs/results --out docs/results/claims.md"""
     loaded, settings = claims.load_claims(REPO / "docs/results/claims.yaml")
     rows = claims.verdicts(REPO / "docs/results", loaded, **settings)
-    text = claims.render(rows, "python -m gchgg.claims docs/results --out docs/results/claims.md", **settings)
+    text = claims.render(rows, "python -m gchgg.analysis.claims docs/results --out docs/results/claims.md", **settings)
     committed = (REPO / "docs/results/claims.md").read_text()
     assert text == committed, "docs/results/claims.md is stale: regenerate it with the command above"
     readme = (REPO / "README.md").read_text()
@@ -236,7 +236,7 @@ def assert_wider(row, than):
 
 
 def test_looks_give_a_faster_claim_pococks_interval_and_runs_off_the_looks_leave_it_undecided(tmp_path):
-    from gchgg import stats
+    from gchgg.analysis import stats
 
     toy = tmp_path / "toy"
     for seed, (a, b) in enumerate(zip([2, 3, 2, 4, 1, 3, 2, 5], [3, 2, 4, 3, 4, 5, 3, 4], strict=True)):
@@ -266,7 +266,7 @@ claims:
 @pytest.mark.parametrize("kind, fields", [("reaches_by", "by: 4"), ("final", "level: 0.99, spread: 0.01")])
 def test_looks_give_a_one_group_claim_pococks_interval_and_runs_off_the_looks_leave_it_undecided(
         tmp_path, kind, fields):
-    from gchgg import stats
+    from gchgg.analysis import stats
 
     toy = tmp_path / "toy"
     for seed, (first, end) in enumerate(zip([2, 3, 2, 4, 1, 3, 2, 5], [0.9, 1.0, 0.95, 0.9, 1.0, 0.92, 0.97, 0.9],

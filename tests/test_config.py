@@ -1,4 +1,4 @@
-"""Structured configs (gchgg/config.py): each setting and its default declared once, each algorithm's config
+"""Structured configs (gchgg/run/config.py): each setting and its default declared once, each algorithm's config
 holding only what it reads, a bad setting named."""
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import yaml
 from omegaconf import OmegaConf
 from test_train import config
 
-from gchgg import builders
-from gchgg import config as schema
-from gchgg.agent import DDPGConfig
+from gchgg.ddpg.agent import DDPGConfig
+from gchgg.run import builders
+from gchgg.run import config as schema
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -61,7 +61,7 @@ def test_the_discount_is_declared_once():
     """The issue's example: gamma = 0.98 was declared in config.yaml, twice in agent.py and in hgg.py."""
     found = [(path.relative_to(ROOT), line) for path in [*ROOT.glob("gchgg/**/*.py"), *ROOT.glob("conf/**/*.yaml")]
              for line in path.read_text().splitlines() if re.search(r"gamma\W[^(]*0\.98", line)]
-    assert [str(path) for path, _ in found] == ["gchgg/agent.py"], found
+    assert [str(path) for path, _ in found] == ["gchgg/ddpg/agent.py"], found
 
 
 def test_each_algorithm_holds_only_the_sections_it_reads():

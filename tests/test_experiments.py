@@ -72,7 +72,7 @@ def test_evaluate_prints_the_success_rate_and_records_a_gif(tmp_path):
     saved = (run_dir / "checkpoint.pt").stat().st_size + sum(p.stat().st_size for p in (run_dir / "replay").iterdir())
     assert (run_dir / "policy.pt").stat().st_size < saved / 10  # evaluation reads the small file only
     video = tmp_path / "push.gif"
-    command = [sys.executable, "-m", "gchgg.evaluate", str(run_dir), "--episodes", "3", "--video", str(video),
+    command = [sys.executable, "-m", "gchgg.analysis.evaluate", str(run_dir), "--episodes", "3", "--video", str(video),
                "--video-episodes", "1", "--camera", "top"]
     done = subprocess.run(command, env={**os.environ, "MUJOCO_GL": "egl"}, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -84,13 +84,13 @@ def test_evaluate_prints_the_success_rate_and_records_a_gif(tmp_path):
 
 
 def test_evaluate_without_a_policy_or_a_renderer_says_what_to_do(tmp_path):
-    from gchgg.evaluate import load_policy_file
+    from gchgg.analysis.evaluate import load_policy_file
 
     with pytest.raises(FileNotFoundError, match="no policy at"):
         load_policy_file(tmp_path)
     run_dir = tmp_path / "run"
     train.run(config(["env=reach", "algo=her", *tiny(tmp_path)]), run_dir)
-    command = [sys.executable, "-m", "gchgg.evaluate", str(run_dir), "--episodes", "1",
+    command = [sys.executable, "-m", "gchgg.analysis.evaluate", str(run_dir), "--episodes", "1",
                "--video", str(tmp_path / "v.gif")]
     done = subprocess.run(command, env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True,
                           timeout=300)

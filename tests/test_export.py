@@ -14,9 +14,10 @@ import torch
 from test_train import config, tiny
 
 import envs
-from gchgg import export, train
-from gchgg.agent import load_policy
-from gchgg.evaluate import evaluate_policy, load_policy_file
+from gchgg import train
+from gchgg.analysis import export
+from gchgg.analysis.evaluate import evaluate_policy, load_policy_file
+from gchgg.ddpg.agent import load_policy
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,7 +33,7 @@ def trained(tmp_path_factory):
 
 def recorded_pairs(task: str, actor, n: int = 1000) -> tuple[torch.Tensor, torch.Tensor]:
     """``n`` (observation, goal) pairs the policy met in rollouts of the task (10 envs x 100 steps)."""
-    from gchgg.rollout import collect
+    from gchgg.run.rollout import collect
 
     env = envs.make(task, num_envs=10, seed=11)
     with torch.inference_mode():

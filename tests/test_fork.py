@@ -1,4 +1,4 @@
-"""A run forked from another run's checkpoint (``init_from``, gchgg/fork.py).
+"""A run forked from another run's checkpoint (``init_from``, gchgg/run/fork.py).
 
 A fork that changes nothing but its length continues exactly as ``resume=true`` would; a G-HGG →
 GC-HGG fork with a fresh seed logs the settings it changes and starts at the source's iteration; a
@@ -22,8 +22,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 from test_train import config, tiny  # noqa: E402
 
-from gchgg import checkpoint, fork, train  # noqa: E402
-from gchgg.linear import resolve_precision  # noqa: E402
+from gchgg import train  # noqa: E402
+from gchgg.fast.linear import resolve_precision  # noqa: E402
+from gchgg.run import checkpoint, fork  # noqa: E402
 
 SOURCE_ITERATIONS = 3  # the forks start at iteration 3, after warm-up (2 iterations) and one of updates
 
@@ -114,7 +115,7 @@ def test_a_ghgg_checkpoint_forked_as_gchgg_logs_the_changes_and_starts_at_the_so
 
     # its pair: the same checkpoint and seed as G-HGG: the same targets and goals at the fork point
     pair = graphs / "fork-ghgg-7"
-    with caplog.at_level(logging.INFO, logger="gchgg.fork"):
+    with caplog.at_level(logging.INFO, logger="gchgg.run.fork"):
         train.run(config(overrides(graphs, "ghgg", "seed=7", "train.iterations=4", f"init_from={source}")), pair)
     out = caplog.text
     assert f"forked from {source} after iteration 2: this run starts at iteration 3" in out

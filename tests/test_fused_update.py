@@ -1,4 +1,4 @@
-"""Tests of gchgg.fused_update: the hand-differentiated DDPG update equals autograd's on the loss module,
+"""Tests of gchgg.fast.fused_update: the hand-differentiated DDPG update equals autograd's on the loss module,
 bit for bit, on torch's BLAS and on oneDNN layers in float32 and bfloat16, and the agent chooses it
 wherever it applies; compiled (``gradients=compiled``) it equals the eager one to float32 rounding."""
 
@@ -11,10 +11,10 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from gchgg import fused_update
-from gchgg.agent import DDPGAgent, HindsightDDPGLoss, make_ddpg_networks
-from gchgg.fused_update import FusedDDPGUpdate, unsupported
-from gchgg.linear import bf16_available, onednn_available, products_in, use_onednn
+from gchgg.ddpg.agent import DDPGAgent, HindsightDDPGLoss, make_ddpg_networks
+from gchgg.fast import fused_update
+from gchgg.fast.fused_update import FusedDDPGUpdate, unsupported
+from gchgg.fast.linear import bf16_available, onednn_available, products_in, use_onednn
 
 OBS, GOAL, ACT = 6, 3, 2
 
@@ -308,5 +308,5 @@ def test_auto_compiles_the_update_where_the_products_are_bfloat16_on_onednn_and_
     expected = "compiled" if bf16_available() and fused_update.compiler_found() else "fused"
     assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), precision="auto").gradients == expected
     assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), precision="float32").gradients == "fused"
-    monkeypatch.setattr("gchgg.agent.compiler_found", lambda: False)
+    monkeypatch.setattr("gchgg.ddpg.agent.compiler_found", lambda: False)
     assert DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), precision="auto").gradients == "fused"

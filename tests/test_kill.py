@@ -20,8 +20,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 from test_train import config, tiny  # noqa: E402
 
-from gchgg import checkpoint, train  # noqa: E402
-from gchgg.linear import onednn_available, resolve_precision  # noqa: E402
+from gchgg import train  # noqa: E402
+from gchgg.fast.linear import onednn_available, resolve_precision  # noqa: E402
+from gchgg.run import checkpoint  # noqa: E402
 
 ITERATIONS = 8
 
@@ -41,7 +42,9 @@ import os, signal, sys
 sys.path.insert(0, {tests!r})
 from pathlib import Path
 from test_train import config
-from gchgg import agent, checkpoint, train
+from gchgg import train
+from gchgg.ddpg import agent
+from gchgg.run import checkpoint
 where, n, run_dir, overrides = sys.argv[1], int(sys.argv[2]), Path(sys.argv[3]), sys.argv[4:]
 calls = [0]
 
@@ -182,7 +185,7 @@ ONEDNN = ("agent.hidden=[64,64]", "train.batch_size=64", "eval.episodes=64", "ma
 
 @pytest.mark.skipif(not onednn_available(), reason="this torch build has no oneDNN linear")
 def test_with_onednn_layers_a_killed_run_resumes_identically_and_background_evaluation_matches(tmp_path):
-    """The same guarantees with layers and batches wide enough for oneDNN (gchgg.linear), in the
+    """The same guarantees with layers and batches wide enough for oneDNN (gchgg.fast.linear), in the
     updates, HGG's values and the 64-episode evaluations alike."""
     whole_dir = tmp_path / "whole"
     train.run(config([*overrides(tmp_path), *ONEDNN]), whole_dir)

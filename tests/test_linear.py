@@ -9,9 +9,9 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from gchgg import linear
-from gchgg.agent import DDPGAgent, load_policy
-from gchgg.linear import (
+from gchgg.ddpg.agent import DDPGAgent, load_policy
+from gchgg.fast import linear
+from gchgg.fast.linear import (
     MIN_BATCH,
     OneDNNLinear,
     onednn_available,

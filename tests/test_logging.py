@@ -14,8 +14,9 @@ import pytest
 from hydra.types import RunMode
 from test_train import config, read_metrics, tiny
 
-from gchgg import config as gchgg_config
-from gchgg import loggers, run_info, train
+from gchgg import train
+from gchgg.run import config as gchgg_config
+from gchgg.run import loggers, run_info
 
 
 def run(tmp_path: Path, backend: str, iterations: int = 2, *extra: str) -> Path:

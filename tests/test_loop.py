@@ -14,9 +14,10 @@ import torch
 from hydra.errors import ConfigCompositionException
 from test_train import config, tiny
 
-from gchgg import evaluator, metrics, train
+from gchgg import train
 from gchgg.graph import EuclideanMetric, GoalGraph
 from gchgg.hgg import HGGGoalGenerator
+from gchgg.run import evaluator, metrics
 from gchgg.samplers import AdaptiveTradeoff, CherSampler, EnergySampler, ExponentialTradeoff, GraphCurriculumSampler
 
 WIRING = {  # algo -> (metric, sampler, goal generator?)
@@ -268,7 +269,7 @@ def test_episode_diagnostics_count_the_objects_that_moved_rose_and_fell():
     from tensordict import TensorDict
 
     import envs
-    from gchgg.metrics import IterationStats
+    from gchgg.run.metrics import IterationStats
 
     start = torch.tensor([0.75, 0.2, 1.015])
     path = torch.zeros(4, 4, 3)  # displacement of each episode's object at steps 0..3
@@ -304,7 +305,7 @@ def test_episode_diagnostics_count_the_objects_that_moved_rose_and_fell():
 def test_fractions_of_episodes_are_exact_ratios():
     """A success rate of 90 of 100 episodes is 0.9, not float32's 0.8999999762, so that it reaches
     train.stop_success=0.9 and the plot's "first ≥ 0.9"."""
-    from gchgg.rollout import fraction
+    from gchgg.run.rollout import fraction
 
     mask = torch.arange(100) < 90
     assert fraction(mask) == 0.9 and mask.float().mean().item() < 0.9

@@ -8,7 +8,7 @@ from tensordict import TensorDict
 from torchrl.envs import TransformedEnv
 
 import envs
-from gchgg.builders import make_observation_noise
+from gchgg.run.builders import make_observation_noise
 from gchgg.transforms import ObservationNoise
 
 

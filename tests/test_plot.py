@@ -1,4 +1,4 @@
-"""Curves and tables over seeds (gchgg.plot) on hand-made run folders: grouping, medians, quartiles."""
+"""Curves and tables over seeds (gchgg.analysis.plot) on hand-made run folders: grouping, medians, quartiles."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from gchgg import plot
+from gchgg.analysis import plot
 
 
 def make_run(folder, algo, seed, success, scale="raw", extra=None):
@@ -362,7 +362,7 @@ def test_task_puts_runs_of_several_folders_in_one_panel(tmp_path, capsys):
 
 
 def test_looks_draw_the_compare_intervals_at_pococks_level_for_a_sequential_design(tmp_path, capsys):
-    from gchgg import stats
+    from gchgg.analysis import stats
 
     for seed, (a, b) in enumerate(zip([2, 3, 2, 4, 1, 3, 2, 5], [3, 2, 4, 3, 4, 5, 3, 4], strict=True)):
         write_csv(tmp_path / "toy" / f"a-seed{seed}.csv", [0.0] * a + [0.95] * (6 - a))

@@ -1,4 +1,4 @@
-"""Interval estimates (gchgg.stats) against plainly written references: IQM, bootstrap CIs, probability of
+"""Interval estimates (gchgg.analysis.stats) against plainly written references: IQM, bootstrap CIs, probability of
 improvement."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from gchgg import stats
+from gchgg.analysis import stats
 
 
 def reference_iqm(values) -> float:

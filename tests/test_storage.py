@@ -1,4 +1,4 @@
-"""Tests of gchgg.storage.FieldStorage: the batches TorchRL's LazyTensorStorage gives, read field by field."""
+"""Tests of gchgg.fast.storage.FieldStorage: the batches TorchRL's LazyTensorStorage gives, read field by field."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
 
-from gchgg.storage import FieldStorage
+from gchgg.fast.storage import FieldStorage
 
 
 def rows(n: int, seed: int = 0) -> TensorDict:

@@ -1,4 +1,4 @@
-"""Subnormals flushed to zero in the update (gchgg.subnormal): the mode is scoped; the networks come out the same."""
+"""Subnormals flushed to zero in the update (fast.subnormal): the mode is scoped; the networks come out the same."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from gchgg.agent import DDPGAgent
-from gchgg.subnormal import flush_subnormals, flushing
+from gchgg.ddpg.agent import DDPGAgent
+from gchgg.fast.subnormal import flush_subnormals, flushing
 
 OBS, GOAL, ACT, HIDDEN = 10, 3, 4, (32, 32)
 SUBNORMAL = 1e-39  # below float32's smallest normal number, 1.18e-38

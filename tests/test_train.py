@@ -12,8 +12,9 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException, MissingConfigException
 
 from envs import TASKS
-from gchgg import checkpoint, evaluator, train
-from gchgg.parts import make_parts
+from gchgg import train
+from gchgg.run import checkpoint, evaluator
+from gchgg.run.parts import make_parts
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 ALGOS = ("her", "hgg", "ghgg", "cher", "gchgg", "gchgg_code")

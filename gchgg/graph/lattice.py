@@ -52,7 +52,7 @@ import torch
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
-from gchgg import checkpoint
+from gchgg.common import files
 
 __all__ = ["DEFAULT_MARGIN", "DEFAULT_N", "USER_CACHE_DIR", "GoalGraph", "check_density_criterion", "default_cache_dir"]
 
@@ -503,8 +503,8 @@ class GoalGraph:
             _log.debug("no graph cache file %s", path)
             return None
         try:
-            table = self._check_cached(checkpoint.load(path))
-        except (checkpoint.CorruptCheckpointError, _CorruptCache, OSError, ValueError, RuntimeError) as error:
+            table = self._check_cached(files.load(path))
+        except (files.CorruptCheckpointError, _CorruptCache, OSError, ValueError, RuntimeError) as error:
             warnings.warn(
                 f"ignoring damaged graph cache file {path} ({error}); rebuilding it",
                 RuntimeWarning,
@@ -533,7 +533,7 @@ class GoalGraph:
         return table.numpy()
 
     def _save(self, table: np.ndarray) -> None:
-        """Write the table with the project's atomic, checksummed writer (:func:`gchgg.checkpoint.save`)."""
+        """Write the table with the project's atomic, checksummed writer (:func:`gchgg.common.files.save`)."""
         path = self.cache_path
         state = {
             "format": _FORMAT,
@@ -544,7 +544,7 @@ class GoalGraph:
             "table": torch.from_numpy(table),
         }
         try:
-            checkpoint.save(state, path, mode=0o644)  # readable like any cache file
+            files.save(state, path, mode=0o644)  # readable like any cache file
         except OSError as error:
             warnings.warn(
                 f"could not write graph cache file {path} ({error}); continuing without it",

@@ -12,6 +12,8 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
+from gchgg.common.validation import check_number
+from gchgg.fast.nearest import check_distances
 from gchgg.graph import EuclideanMetric, Metric
 from gchgg.samplers._storage import (
     check_sampleable,
@@ -22,9 +24,7 @@ from gchgg.samplers._storage import (
     one_thread,
     read_field,
 )
-from gchgg.samplers.nearest import check_distances
 from gchgg.samplers.tradeoff import ExponentialTradeoff, Tradeoff, as_tradeoff
-from gchgg.validation import check_number
 
 __all__ = ["CherSampler", "lazier_than_lazy_greedy", "nearest_other"]
 

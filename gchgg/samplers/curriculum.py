@@ -1,6 +1,6 @@
 """Graph-curriculum sampler (Algorithm 1): best of K candidate batches by diversity (eq. 19) + λ·proximity (eq. 15).
 
-The nearest-neighbour search F_div needs lives in :mod:`gchgg.samplers.nearest`.
+The nearest-neighbour search F_div needs lives in :mod:`gchgg.fast.nearest`.
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
+from gchgg.common.validation import check_choice, check_number
+from gchgg.fast.nearest import NearestNeighbours, check_distances
 from gchgg.graph import Metric
 from gchgg.samplers._storage import (
     WrittenRows,
@@ -28,9 +30,7 @@ from gchgg.samplers._storage import (
     read_field,
 )
 from gchgg.samplers.energy import EnergySampler
-from gchgg.samplers.nearest import NearestNeighbours, check_distances
 from gchgg.samplers.tradeoff import Tradeoff, as_tradeoff
-from gchgg.validation import check_choice, check_number
 
 __all__ = ["ON_WRITE", "SCALES", "GraphCurriculumSampler", "curriculum_objective"]
 

@@ -12,6 +12,7 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
+from gchgg.common.validation import check_number
 from gchgg.samplers._storage import (
     WrittenRows,
     check_sampleable,
@@ -22,7 +23,6 @@ from gchgg.samplers._storage import (
     one_thread,
     read_field,
 )
-from gchgg.validation import check_number
 
 __all__ = ["EnergySampler"]
 

@@ -12,7 +12,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import torch
 
-from gchgg.validation import check_number
+from gchgg.common.validation import check_number
 
 __all__ = ["AdaptiveTradeoff", "ExponentialTradeoff", "FixedTradeoff", "Tradeoff", "as_tradeoff"]
 

@@ -19,8 +19,8 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from torchrl.envs.transforms import Transform
 
+from gchgg.common.validation import check_number
 from gchgg.transforms._mask import DEFAULT_MASK_KEY, episode_lengths
-from gchgg.validation import check_number
 
 __all__ = ["EpisodeEnergy", "trajectory_energy"]
 

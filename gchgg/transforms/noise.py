@@ -21,7 +21,7 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from torchrl.envs.transforms import Transform
 
-from gchgg.validation import check_number
+from gchgg.common.validation import check_number
 
 __all__ = ["ObservationNoise"]
 

@@ -13,12 +13,12 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from gchgg import loggers
-from gchgg.linear import resolve_matmul, resolve_precision
+from gchgg.fast.linear import resolve_matmul, resolve_precision
+from gchgg.run import loggers
 
 __all__ = ["open_loggers", "requeued", "startup_record", "tracker_names", "versions"]
 
-REPOSITORY = Path(__file__).resolve().parents[1]  # the checkout the code runs from
+REPOSITORY = Path(__file__).resolve().parents[2]  # the checkout the code runs from
 
 
 def tracker_names(cfg: DictConfig, run_dir: Path) -> tuple[str, str, Path]:
@@ -34,7 +34,7 @@ def tracker_names(cfg: DictConfig, run_dir: Path) -> tuple[str, str, Path]:
 
 
 def open_loggers(cfg: DictConfig, run_dir: Path) -> loggers.RunLoggers:
-    """The trackers ``logging.backend`` names (:mod:`gchgg.loggers`), with the resolved settings, the
+    """The trackers ``logging.backend`` names (:mod:`gchgg.run.loggers`), with the resolved settings, the
     package versions and the git commit as hyperparameters."""
     name, group, store = tracker_names(cfg, run_dir)
     hparams = {
@@ -74,7 +74,7 @@ def versions() -> dict[str, str]:
 
 def startup_record(cfg: DictConfig, gradients: str | None = None) -> str:
     """The run's resolved settings and the installed versions, as logged once at start-up
-    (``gradients``: the agent's resolved ``gradients`` setting, :attr:`gchgg.agent.DDPGAgent.gradients`)."""
+    (``gradients``: the agent's resolved ``gradients`` setting, :attr:`gchgg.ddpg.agent.DDPGAgent.gradients`)."""
     packages = ", ".join(f"{k} {v}" for k, v in versions().items())
     matmul, precision = cfg.matmul, cfg.precision
     resolved = f"gradients: {cfg.get('gradients', 'auto')} -> {gradients}\n" if gradients else ""

@@ -2,7 +2,7 @@
 
 Each ``make_*`` function turns a few plain settings into one part — the goal metric, the trade-off
 schedule, the replay buffer with its sampler, the HER transform, the goal generator. The settings'
-defaults and checks are declared where the settings are: in :mod:`gchgg.config` for the pipeline,
+defaults and checks are declared where the settings are: in :mod:`gchgg.run.config` for the pipeline,
 and in the parts themselves for their arguments; a builder takes every setting explicitly and checks
 only the choices it makes between parts.
 """
@@ -16,6 +16,8 @@ import torch
 from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs.transforms import Compose
 
+from gchgg.common.validation import check_choice
+from gchgg.fast.storage import FieldStorage
 from gchgg.graph import USER_CACHE_DIR, EuclideanMetric, GoalGraph, check_density_criterion
 from gchgg.hgg import HGGGoalGenerator, TrajectoryPool
 from gchgg.samplers import (
@@ -27,9 +29,7 @@ from gchgg.samplers import (
     GraphCurriculumSampler,
 )
 from gchgg.samplers.curriculum import SCALES
-from gchgg.storage import FieldStorage
 from gchgg.transforms import DEFAULT_DROP_KEYS, EpisodeEnergy, GoalToNext, HindsightRelabel, ObservationNoise
-from gchgg.validation import check_choice
 
 METRICS = ("euclidean", "graph")
 SAMPLERS = ("uniform", "ebp", "curriculum", "cher")
@@ -129,7 +129,7 @@ def make_replay_buffer(
 
     Every episode occupies ``transitions_per_episode`` = (k+1)·T consecutive rows, so the FIFO
     drops whole episodes. Sampled batches get ``("next", "desired_goal")`` back (:class:`GoalToNext`);
-    their rows are read field by field (:class:`gchgg.storage.FieldStorage`).
+    their rows are read field by field (:class:`gchgg.fast.storage.FieldStorage`).
     """
     kwargs = {} if sampler is None else {"sampler": sampler}
     return TensorDictReplayBuffer(

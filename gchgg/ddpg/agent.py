@@ -19,10 +19,10 @@ The agent follows the reference implementation's defaults (``REFERENCE.md``, "Tr
 optimisers, the target-update schedule, exploration, the value function HGG needs and a complete
 ``state_dict``. Its :meth:`DDPGAgent.update` reads the batch's tensors once and runs the loss's
 tensor path, differentiated by autograd or by hand with the same result bit for bit
-(:mod:`gchgg.fused_update`, the default; ``benchmarks/agent_update.py`` times both). Its ``matmul``
-argument picks who computes the wide layers' matrix products (:mod:`gchgg.linear`: oneDNN where
-measured faster); it changes speed, not the math. So does ``subnormals`` (:mod:`gchgg.subnormal`), and
-so does stepping the fused Adam optimisers through :func:`gchgg.adam_step.adam_step`.
+(:mod:`gchgg.fast.fused_update`, the default; ``benchmarks/agent_update.py`` times both). Its ``matmul``
+argument picks who computes the wide layers' matrix products (:mod:`gchgg.fast.linear`: oneDNN where
+measured faster); it changes speed, not the math. So does ``subnormals`` (:mod:`gchgg.fast.subnormal`), and
+so does stepping the fused Adam optimisers through :func:`gchgg.fast.adam_step.adam_step`.
 """
 
 from __future__ import annotations
@@ -41,11 +41,11 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import MLP
 
-from gchgg.adam_step import adam_step
-from gchgg.fused_update import FusedDDPGUpdate, compiler_found, unsupported
-from gchgg.linear import MIN_BATCH, OneDNNLinear, products_in, resolve_matmul, resolve_precision, use_onednn
-from gchgg.subnormal import SUBNORMALS, flush_subnormals
-from gchgg.validation import check_choice, check_number
+from gchgg.common.validation import check_choice, check_number
+from gchgg.fast.adam_step import adam_step
+from gchgg.fast.fused_update import FusedDDPGUpdate, compiler_found, unsupported
+from gchgg.fast.linear import MIN_BATCH, OneDNNLinear, products_in, resolve_matmul, resolve_precision, use_onednn
+from gchgg.fast.subnormal import SUBNORMALS, flush_subnormals
 
 __all__ = [
     "GRADIENTS",
@@ -263,12 +263,12 @@ def make_ddpg_networks(
 GRADIENTS = ("auto", "fused", "compiled", "autograd")
 """How :meth:`DDPGAgent.update` computes the gradients (the ``gradients`` setting): ``autograd`` differentiates
 :class:`HindsightDDPGLoss`; ``fused`` computes the same losses and gradients by hand
-(:class:`gchgg.fused_update.FusedDDPGUpdate`: bit for bit autograd's, on torch's BLAS and on oneDNN in
+(:class:`gchgg.fast.fused_update.FusedDDPGUpdate`: bit for bit autograd's, on torch's BLAS and on oneDNN in
 float32 or bfloat16, faster by the autograd overhead and conversions it skips,
 ``benchmarks/agent_update.py``); ``compiled``: that update compiled by ``torch.compile`` (TorchInductor,
 which needs a C++ compiler) for the batches whose products run on oneDNN, equal to it to float32 rounding and
 faster by the Python and element-wise passes it removes; ``auto``: ``compiled`` where the products are
-bfloat16 on oneDNN and a C++ compiler is found (:func:`gchgg.fused_update.compiler_found`), else ``fused``
+bfloat16 on oneDNN and a C++ compiler is found (:func:`gchgg.fast.fused_update.compiler_found`), else ``fused``
 where it applies (the ReLU MLPs :func:`make_ddpg_networks` builds), else ``autograd``."""
 
 
@@ -276,7 +276,7 @@ where it applies (the ReLU MLPs :func:`make_ddpg_networks` builds), else ``autog
 class DDPGConfig:
     """The learner's hyperparameters, each declared once, here (defaults: the original code's, REFERENCE.md).
 
-    The ``agent`` section of a run's config (:class:`gchgg.config.AgentConfig`, with these defaults) sets
+    The ``agent`` section of a run's config (:class:`gchgg.run.config.AgentConfig`, with these defaults) sets
     them by name (``agent.actor_lr=5e-4``); a :class:`DDPGAgent` logs them in ``hparams`` and refuses a
     state saved with others.
 
@@ -519,23 +519,23 @@ class DDPGAgent:
         action_dim: action size.
         config: the hyperparameters (:class:`DDPGConfig`; default: the original code's).
         generator: draws the initial weights (``None``: torch's global generator).
-        matmul: who computes the wide layers' products, one of :data:`gchgg.linear.MATMUL_BACKENDS`
+        matmul: who computes the wide layers' products, one of :data:`gchgg.fast.linear.MATMUL_BACKENDS`
             (``"auto"``: oneDNN where this torch has it and the products are bfloat16 or the CPU is one of
-            :data:`gchgg.linear.ONEDNN_FASTER`, else torch's BLAS; resolved into :attr:`matmul`, the
+            :data:`gchgg.fast.linear.ONEDNN_FASTER`, else torch's BLAS; resolved into :attr:`matmul`, the
             backend its layers use, which a process acting with its policy passes to :func:`load_policy`
             to act alike). Speed only: it is not a hyperparameter, is not saved, and a state loads under
             any backend.
-        precision: the dtype of those products in :meth:`update`, one of :data:`gchgg.linear.PRECISIONS`:
+        precision: the dtype of those products in :meth:`update`, one of :data:`gchgg.fast.linear.PRECISIONS`:
             ``"float32"`` (default: the math as written), ``"bfloat16"`` (oneDNN's native bfloat16
             products on CPUs with AVX-512 BF16 or AMX; ``benchmarks/agent_update.py`` times it) or
             ``"auto"`` (bfloat16 where that is native, what training uses by default; resolved into
-            :attr:`precision` by :func:`gchgg.linear.resolve_precision`). Unlike ``matmul`` it changes
+            :attr:`precision` by :func:`gchgg.fast.linear.resolve_precision`). Unlike ``matmul`` it changes
             the numbers (rounding), so runs record it; acting stays float32.
         gradients: how :meth:`update` computes the gradients, one of :data:`GRADIENTS` (``"auto"``: by
             hand where that applies; resolved into :attr:`gradients`). Speed only, like ``matmul``:
             the gradients are autograd's.
         subnormals: ``"flush"`` (default) runs :meth:`update` with subnormal floats flushed to zero
-            (:mod:`gchgg.subnormal`: Adam's moments of units that stopped firing decay into that slow
+            (:mod:`gchgg.fast.subnormal`: Adam's moments of units that stopped firing decay into that slow
             range; flushed, the networks come out the same bit for bit), ``"keep"`` with IEEE arithmetic.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
@@ -601,7 +601,7 @@ class DDPGAgent:
         self.precision = resolve_precision(precision, matmul)  # "auto" -> what this machine does well
         self.matmul = resolve_matmul(matmul, self.precision)  # the backend the layers got: "onednn" or "default"
         use_onednn(self.loss_module, self.matmul)  # the online and the target networks
-        # fused Adam: one kernel per step instead of several per parameter (stepped by gchgg.adam_step)
+        # fused Adam: one kernel per step instead of several per parameter (stepped by gchgg.fast.adam_step)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
         self.observation_normalizer: RunningNormalizer = self.loss_module.actor.observation_normalizer
@@ -916,7 +916,7 @@ class DDPGAgent:
 
 
 class SmallBatchActor:
-    """The actor's forward for batches below :data:`~gchgg.linear.MIN_BATCH` rows, without ``nn.Module`` calls.
+    """The actor's forward for batches below :data:`~gchgg.fast.linear.MIN_BATCH` rows, without ``nn.Module`` calls.
 
     The same operations on the same tensors as :class:`GoalConditionedActor` (the normalisers' clipped
     standardisation, ``F.linear`` — what its layers compute on such batches — ReLU, tanh), so the same

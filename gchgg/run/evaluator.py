@@ -9,7 +9,7 @@ last) and when the evaluations so far stop the run (``train.stop_success`` held 
 ``train.stop_patience`` evaluations).
 
 :class:`BackgroundEvaluator` (``eval.background``): the trainer hands over each evaluated
-iteration's actor (:meth:`gchgg.agent.DDPGAgent.policy_state`) and goes on training; a spawned
+iteration's actor (:meth:`gchgg.ddpg.agent.DDPGAgent.policy_state`) and goes on training; a spawned
 process owns an evaluation env built exactly as the trainer builds its own, runs the deterministic
 episodes and sends back the success rate and the env's random state after them. Snapshots are
 evaluated in the order they were submitted, from the env state the first submission after a
@@ -30,7 +30,7 @@ from typing import Any
 
 import torch
 
-from gchgg.rollout import evaluate
+from gchgg.run.rollout import evaluate
 
 __all__ = ["BackgroundEvaluator", "EvaluationSchedule", "Evaluations", "env_state", "set_env_state"]
 
@@ -91,7 +91,7 @@ class BackgroundEvaluator:
             as the trainer builds it (called once, in the worker).
         steps: episode length.
         threads: torch threads in the worker.
-        matmul: the backend of the policy's products (:func:`gchgg.agent.load_policy`), the trainer's, so
+        matmul: the backend of the policy's products (:func:`gchgg.ddpg.agent.load_policy`), the trainer's, so
             that a background evaluation equals the in-line one.
     """
 
@@ -154,7 +154,7 @@ class BackgroundEvaluator:
 def _serve(build_env, steps: int, threads: int, matmul: str, requests, results) -> None:
     try:
         torch.set_num_threads(threads)
-        from gchgg.agent import load_policy
+        from gchgg.ddpg.agent import load_policy
 
         env, noise = build_env()
         while (request := requests.get()) is not None:

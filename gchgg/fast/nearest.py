@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from gchgg.validation import check_number
+from gchgg.common.validation import check_number
 
 __all__ = [
     "POINT_SIZE", "NearestNeighbours", "check_distances", "check_goals", "nearest_neighbour_distances", "point_size",

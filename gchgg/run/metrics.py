@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gchgg.agent import DDPGAgent
-from gchgg.rollout import fraction
+from gchgg.ddpg.agent import DDPGAgent
+from gchgg.run.rollout import fraction
 
 __all__ = ["PHASES", "IterationStats", "PhaseTimer", "log_complete", "write_csv"]
 

@@ -1,4 +1,4 @@
-"""The DDPG update of :class:`gchgg.agent.HindsightDDPGLoss` differentiated by hand: the speed device beside the loss.
+"""The DDPG update of :class:`gchgg.ddpg.HindsightDDPGLoss` differentiated by hand: the speed device beside the loss.
 
 :class:`HindsightDDPGLoss` states the losses (the paper's and the original code's critic and actor
 losses) and autograd differentiates them. Part of that update is spent outside the products:
@@ -23,9 +23,9 @@ autograd's bit for bit (``tests/test_fused_update.py``, batch sizes 5 to 256; th
 ``tests/test_same_numbers.py`` do not move). ``python benchmarks/agent_update.py`` times it against
 the autograd update and the bare plain-torch one (``fused / autograd agent``, ``fused / bare``).
 
-It applies to the networks :func:`gchgg.agent.make_ddpg_networks` builds: ReLU MLPs of float32
+It applies to the networks :func:`gchgg.ddpg.agent.make_ddpg_networks` builds: ReLU MLPs of float32
 ``nn.Linear`` layers with biases (:func:`unsupported` says why other networks are not), on torch's
-BLAS or converted to oneDNN (:mod:`gchgg.linear`). A :class:`~gchgg.linear.OneDNNLinear` layer's
+BLAS or converted to oneDNN (:mod:`gchgg.fast.linear`). A :class:`~gchgg.fast.linear.OneDNNLinear` layer's
 products are computed as it computes them, by oneDNN in the products' precision (float32, or
 bfloat16 with ``precision=bfloat16``: operands and results rounded, float32 accumulation), so the
 fused update equals the autograd update bit for bit in every setting (``tests/test_fused_update.py``);
@@ -46,10 +46,10 @@ from typing import TYPE_CHECKING
 import torch
 from torch import nn
 
-from gchgg.linear import MIN_BATCH, OneDNNLinear, onednn_linear, onednn_mm
+from gchgg.fast.linear import MIN_BATCH, OneDNNLinear, onednn_linear, onednn_mm
 
 if TYPE_CHECKING:  # the loss module is only read: its networks, normalisers and constants
-    from gchgg.agent import HindsightDDPGLoss
+    from gchgg.ddpg.agent import HindsightDDPGLoss
 
 __all__ = ["FusedDDPGUpdate", "compiler_found", "unsupported"]
 
@@ -244,9 +244,9 @@ class FusedDDPGUpdate:
 
     Args:
         loss: the loss module; its networks must pass :func:`unsupported`.
-        precision: the dtype of the :class:`~gchgg.linear.OneDNNLinear` layers' products, ``"float32"`` or
-            ``"bfloat16"`` (resolved: what :func:`gchgg.linear.resolve_precision` returns and the autograd
-            update would compute them in under :func:`gchgg.linear.products_in`); plain ``nn.Linear``
+        precision: the dtype of the :class:`~gchgg.fast.linear.OneDNNLinear` layers' products, ``"float32"`` or
+            ``"bfloat16"`` (resolved: what :func:`gchgg.fast.linear.resolve_precision` returns and the autograd
+            update would compute them in under :func:`gchgg.fast.linear.products_in`); plain ``nn.Linear``
             layers multiply in float32.
         compiled: run the arithmetic compiled (above).
         fall_back: where the compiled update cannot be built (Inductor fails: no usable C++ compiler or
@@ -266,7 +266,7 @@ class FusedDDPGUpdate:
             raise ValueError(f"FusedDDPGUpdate needs ReLU MLPs of plain float32 nn.Linear layers: {reason}")
         self.loss = loss
         if precision not in ("float32", "bfloat16"):
-            raise ValueError(f"precision must be 'float32' or 'bfloat16' (resolved, as gchgg.linear.resolve_precision "
+            raise ValueError(f"precision must be 'float32' or 'bfloat16' (resolved, as fast.linear.resolve_precision "
                              f"returns it), got {precision!r}")
         self.precision = precision
         self.compiled = bool(compiled)

@@ -1,107 +1,38 @@
-"""Checkpoints: atomic, checksummed files that a run killed at any moment leaves intact, and the parts' state.
+"""Checkpoints: what a run's checkpoint holds of its parts, and the checks before a run resumes from one.
 
-A checkpoint file is a small header (magic, SHA-256 of the payload, payload length) followed by a
-``torch.save`` payload. :func:`save` writes to a temporary file in the same folder, flushes it to
-disk and renames it over the old checkpoint, so a reader sees either the previous checkpoint or the
-new one, never a partial file. :func:`load` verifies the header and the checksum and raises
-:class:`CorruptCheckpointError` when anything does not match.
+The file itself is written and read by :mod:`gchgg.common.files` (atomic, checksummed; re-exported
+here as :func:`save`, :func:`load` and :class:`CorruptCheckpointError`).
 
 :func:`check_identity` refuses to resume another run's checkpoint; :func:`save_policy` writes the
 actor alone beside each checkpoint. :func:`parts_state` and :func:`load_parts_state` are what a
-run's checkpoint holds of its parts (:class:`gchgg.parts.Parts`): the agent, the buffer's sampler,
+run's checkpoint holds of its parts (:class:`gchgg.run.parts.Parts`): the agent, the buffer's sampler,
 writer and generator states and its storage's length (the rows are in the replay files,
-:mod:`gchgg.replay_log`), the trade-off, the goal generator, and every random stream and env state;
+:mod:`gchgg.run.replay_log`), the trade-off, the goal generator, and every random stream and env state;
 the trainer adds the loop's own state.
 """
 
 from __future__ import annotations
 
-import hashlib
-import io
-import os
-import struct
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import torch
 from omegaconf import OmegaConf
 
-from gchgg.evaluator import env_state
+from gchgg.common.files import CorruptCheckpointError, load, remove_temporaries, save
+from gchgg.run.evaluator import env_state
 
 if TYPE_CHECKING:
-    from gchgg.parts import Parts
-    from gchgg.replay_log import ReplayLog
+    from gchgg.run.parts import Parts
+    from gchgg.run.replay_log import ReplayLog
 
-_MAGIC = b"GCHGGCK1"
-_HEADER = struct.Struct("<8s32sQ")  # magic, sha256 digest, payload length
-
-
-class CorruptCheckpointError(RuntimeError):
-    """The checkpoint file is truncated, altered or not a gchgg checkpoint."""
-
-
-def save(state: dict[str, Any], path: str | os.PathLike, *, mode: int | None = None) -> None:
-    """Write ``state`` to ``path`` atomically (temporary file + fsync + rename); ``mode`` sets the
-    file's permissions (default: the temporary file's 0600)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    buffer = io.BytesIO()
-    torch.save(state, buffer)
-    payload = buffer.getbuffer()
-    header = _HEADER.pack(_MAGIC, hashlib.sha256(payload).digest(), len(payload))
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(header)
-            f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        if mode is not None:
-            os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def remove_temporaries(folder: str | os.PathLike) -> list[Path]:
-    """Delete the temporary files that saves killed before their rename left in ``folder`` (a SIGKILL
-    runs no cleanup); returns them. Only files named as :func:`save` names its temporaries go."""
-    folder = Path(folder)
-    stale = sorted(folder.glob(".*.tmp")) if folder.is_dir() else []
-    for path in stale:
-        path.unlink(missing_ok=True)
-    return stale
-
-
-def load(path: str | os.PathLike) -> dict[str, Any]:
-    """Read a checkpoint written by :func:`save`, verifying its checksum.
-
-    Raises:
-        FileNotFoundError: there is no file at ``path``.
-        CorruptCheckpointError: the file is truncated, altered or not a gchgg checkpoint.
-    """
-    path = Path(path)
-    data = path.read_bytes()
-    if len(data) < _HEADER.size:
-        raise CorruptCheckpointError(f"checkpoint {path} is corrupt: {len(data)} bytes, shorter than its header")
-    magic, digest, length = _HEADER.unpack_from(data)
-    payload = memoryview(data)[_HEADER.size :]
-    if magic != _MAGIC:
-        raise CorruptCheckpointError(f"checkpoint {path} is corrupt: not a gchgg checkpoint (bad magic {magic!r})")
-    if len(payload) != length:
-        raise CorruptCheckpointError(
-            f"checkpoint {path} is corrupt: payload has {len(payload)} bytes, header says {length} (truncated?)"
-        )
-    if hashlib.sha256(payload).digest() != digest:
-        raise CorruptCheckpointError(f"checkpoint {path} is corrupt: checksum mismatch")
-    return torch.load(io.BytesIO(payload), weights_only=False)
+__all__ = ["CorruptCheckpointError", "check_identity", "load", "load_parts_state", "parts_state",
+           "remove_temporaries", "save", "save_policy"]
 
 
 def parts_state(parts: Parts, evaluation: dict | None = None) -> dict[str, Any]:
     """The parts' states, replay rows aside; ``evaluation``: the eval env's state before the background
-    evaluations in flight (:func:`gchgg.evaluator.env_state`; default: the eval env's state now)."""
+    evaluations in flight (:func:`gchgg.run.evaluator.env_state`; default: the eval env's state now)."""
     buffer = parts.buffer.state_dict()
     storage = buffer["_storage"]
     buffer["_storage"] = {"initialized": storage["initialized"], "_len": storage["_len"]}  # the rows: replay files

@@ -1,4 +1,4 @@
-"""Export a trained policy for a robot: ``python -m gchgg.export RUN_DIR --format onnx|torchscript --out FILE``.
+"""Export a trained policy for a robot: ``python -m gchgg.export RUN --format onnx|torchscript --out FILE``.
 
 The file holds the actor with its observation and goal normalisers folded in: input
 ``(observation [B, obs_dim], goal [B, 3])`` float32, output ``action [B, A]`` in [−1, 1]. A
@@ -7,7 +7,7 @@ the task, the observation layout (named slices), what the action means and its s
 control rate, and the checkpoint it came from. ``examples/run_policy.py`` drives a task with it
 using onnxruntime (or plain torch for TorchScript) and numpy only.
 
-    python -m gchgg.export outputs/push_new/gchgg/seed0 --format onnx --out push_new.onnx
+    python -m gchgg.analysis.export outputs/push_new/gchgg/seed0 --format onnx --out push_new.onnx
 """
 
 from __future__ import annotations
@@ -71,8 +71,8 @@ def export(run_dir: str | os.PathLike, fmt: str, out: str | os.PathLike) -> Path
         FileNotFoundError: the run has no ``policy.pt`` (it has not checkpointed yet).
         ValueError: an unknown format.
     """
-    from gchgg.agent import load_policy
-    from gchgg.evaluate import load_policy_file
+    from gchgg.analysis.evaluate import load_policy_file
+    from gchgg.ddpg.agent import load_policy
 
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {FORMATS}, got {fmt!r}")

@@ -1,4 +1,4 @@
-"""Evaluate and watch a trained policy: ``python -m gchgg.evaluate RUN_DIR [--episodes N] [--video FILE]``.
+"""Evaluate and watch a trained policy: ``python -m gchgg.analysis.evaluate RUN_DIR [--episodes N] [--video FILE]``.
 
 Loads only the run's ``policy.pt`` (the actor and its normalisers, written beside every checkpoint;
 never the replay buffer, so it starts in seconds for any run), runs ``--episodes`` deterministic
@@ -7,8 +7,8 @@ step, as the training's evaluation) and the mean final distance to the goal. ``-
 the first ``--video-episodes`` episodes through MuJoCo's offscreen renderer (``MUJOCO_GL=egl``, the
 default here, or ``osmesa``) with the goal marked (the green sphere), as MP4 or GIF via imageio.
 
-    python -m gchgg.evaluate outputs/reach/her/seed0 --episodes 100 --video reach.mp4 --camera front
-    python -m gchgg.evaluate outputs/push_new/gchgg/seed0 --noise 0.01    # a camera's error on the object
+    python -m gchgg.analysis.evaluate outputs/reach/her/seed0 --episodes 100 --video reach.mp4 --camera front
+    python -m gchgg.analysis.evaluate outputs/push_new/gchgg/seed0 --noise 0.01    # a camera's error on the object
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def load_policy_file(run_dir: str | Path) -> dict:
     A run written before runs saved ``policy.pt`` has only ``checkpoint.pt``: its policy is then
     read from the full checkpoint (slow: the replay buffer is read too) and its ``config.yaml``.
     """
-    from gchgg import checkpoint
+    from gchgg.run import checkpoint
 
     path = Path(run_dir)
     folder = path if path.is_dir() else path.parent
@@ -56,8 +56,8 @@ def _policy_from_checkpoint(folder: Path) -> dict:
     """What ``policy.pt`` would hold, from an older run's ``checkpoint.pt`` and ``config.yaml``."""
     from omegaconf import OmegaConf
 
-    from gchgg import checkpoint
-    from gchgg.agent import DDPGAgent
+    from gchgg.ddpg.agent import DDPGAgent
+    from gchgg.run import checkpoint
 
     state = checkpoint.load(folder / "checkpoint.pt")
     config = OmegaConf.to_container(OmegaConf.load(folder / "config.yaml"), resolve=True)
@@ -90,8 +90,8 @@ def evaluate_policy(
     from torchrl.envs import TransformedEnv
 
     import envs
-    from gchgg.builders import make_observation_noise
-    from gchgg.rollout import collect, fraction
+    from gchgg.run.builders import make_observation_noise
+    from gchgg.run.rollout import collect, fraction
 
     generator = torch.Generator().manual_seed(seed)
 
@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl" if args.video else "disable")
     os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
 
-    from gchgg.agent import load_policy
+    from gchgg.ddpg.agent import load_policy
 
     saved = load_policy_file(args.run_dir)
     actor = load_policy(saved["policy"])

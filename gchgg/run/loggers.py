@@ -1,6 +1,6 @@
 """The run's experiment trackers (``logging.backend``): TorchRL's loggers, built from plain arguments.
 
-``metrics.csv`` is the run's record (resume, :mod:`gchgg.plot` and :mod:`gchgg.claims` read it) and is
+``metrics.csv`` is the run's record (resume, :mod:`gchgg.analysis.plot` and :mod:`gchgg.analysis.claims` read it) and is
 always written by the trainer; the backends here receive the same rows as it, one call per complete
 row with ``step = iteration``, and the run's hyperparameters once:
 

@@ -18,7 +18,7 @@ files of the methods without a curriculum, a λ, CHER's pool or a graph metric s
 ``tradeoff``, ``cher`` and ``graph`` to ``null``.
 
 :func:`check` validates a composed config. Each section's ``check`` method checks its own settings
-and names them ``<section>.<setting>`` (the ``agent`` section: :class:`~gchgg.agent.DDPGConfig`'s own
+and names them ``<section>.<setting>`` (the ``agent`` section: :class:`~gchgg.ddpg.agent.DDPGConfig`'s own
 checks, prefixed); :func:`check` adds the settings that depend on each other. The parts check their
 own arguments again when they are built: that is their contract as a library.
 """
@@ -32,16 +32,16 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from gchgg import loggers
-from gchgg.agent import GRADIENTS, DDPGConfig
-from gchgg.builders import GOAL_GENERATORS, METRICS, SAMPLERS
+from gchgg.common.validation import check_choice, check_number
+from gchgg.ddpg.agent import GRADIENTS, DDPGConfig
+from gchgg.fast.linear import MATMUL_BACKENDS, PRECISIONS
+from gchgg.fast.subnormal import SUBNORMALS
 from gchgg.graph import GoalGraph
 from gchgg.hgg import HGGGoalGenerator, TrajectoryPool
-from gchgg.linear import MATMUL_BACKENDS, PRECISIONS
+from gchgg.run import loggers
+from gchgg.run.builders import GOAL_GENERATORS, METRICS, SAMPLERS
 from gchgg.samplers import AdaptiveTradeoff, CherSampler, ExponentialTradeoff, FixedTradeoff, GraphCurriculumSampler
-from gchgg.subnormal import SUBNORMALS
 from gchgg.transforms import HindsightRelabel
-from gchgg.validation import check_choice, check_number
 
 __all__ = [
     "AdaptiveTradeoffConfig", "AgentConfig", "AlgoConfig", "BufferConfig", "CheckpointConfig", "CherConfig",
@@ -244,13 +244,13 @@ class HERConfig:
 
 
 def _ddpg(name: str) -> Any:
-    """The default of :class:`~gchgg.agent.DDPGConfig`'s field ``name``, where it is declared."""
+    """The default of :class:`~gchgg.ddpg.agent.DDPGConfig`'s field ``name``, where it is declared."""
     return DDPGConfig.__dataclass_fields__[name].default
 
 
 @dataclass
 class AgentConfig:
-    """DDPG's hyperparameters (:class:`gchgg.agent.DDPGConfig`'s fields with its defaults: the original
+    """DDPG's hyperparameters (:class:`gchgg.ddpg.agent.DDPGConfig`'s fields with its defaults: the original
     code's) and where the normalisers' statistics come from."""
 
     hidden: list[int] = field(default_factory=lambda: list(_ddpg("hidden")))  # hidden sizes of actor and critic
@@ -273,7 +273,7 @@ class AgentConfig:
 
     def ddpg(self) -> DDPGConfig:
         """The learner's own hyperparameters (all but ``normalizer_source``, which the loop reads), checked
-        by :class:`~gchgg.agent.DDPGConfig` (a bad one names ``agent.<setting>``)."""
+        by :class:`~gchgg.ddpg.agent.DDPGConfig` (a bad one names ``agent.<setting>``)."""
         try:
             return DDPGConfig(**{name: getattr(self, name) for name in DDPGConfig.__dataclass_fields__})
         except ValueError as error:
@@ -292,7 +292,7 @@ class CheckpointConfig:
 
 @dataclass
 class LoggingConfig:
-    """Trackers and progress output (:mod:`gchgg.loggers`)."""
+    """Trackers and progress output (:mod:`gchgg.run.loggers`)."""
 
     backend: Any = "csv"  # csv | tensorboard | wandb | mlflow, or a list: [csv,tensorboard,wandb]
     project: str = "gchgg"  # W&B project (a sweep's runs are grouped by its folder's name)
@@ -307,14 +307,14 @@ class LoggingConfig:
 class RunConfig:
     """One training run: the top-level settings and one section per part."""
 
-    seed: int = 0  # seeds the env, the networks and every generator of the run (gchgg.parts.SEEDS)
+    seed: int = 0  # seeds the env, the networks and every generator of the run (gchgg.run.parts.SEEDS)
     resume: bool = False  # continue the run in the run folder from its last checkpoint
     init_from: str | None = None  # a run folder: start from its last checkpoint with these settings (a fork)
     threads: int = 1  # torch CPU threads (1: fastest for these small nets on a shared machine; 0: torch's)
     matmul: str = "auto"  # the wide layers' products: auto (oneDNN for bfloat16, or where faster) | onednn | default
     precision: str = "auto"  # their dtype in updates: auto (bfloat16 where native) | float32 | bfloat16
     gradients: str = "auto"  # of the updates: auto (by hand wherever the networks allow) | fused | compiled | autograd
-    subnormals: str = "flush"  # in updates: flush (to zero: fast, same networks; gchgg.subnormal) | keep
+    subnormals: str = "flush"  # in updates: flush (to zero: fast, same networks; gchgg.fast.subnormal) | keep
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     graph: GraphConfig | None = None  # the graph=default group; null where no metric is the graph

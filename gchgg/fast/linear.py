@@ -103,7 +103,7 @@ def onednn_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | No
     float32 ``bias`` beside bfloat16 operands is added before the result is rounded); ``x`` [B, in] and
     ``weight`` [out, in] may be strided views. With ``relu=True`` oneDNN applies the ReLU before it rounds
     the result, which gives the same values as a ReLU after (rounding is monotone and keeps 0).
-    :class:`OneDNNLinear` and :class:`gchgg.fused_update.FusedDDPGUpdate` compute their products with it.
+    :class:`OneDNNLinear` and :class:`gchgg.fast.fused_update.FusedDDPGUpdate` compute their products with it.
 
     Under ``torch.compile`` it is the custom operator ``gchgg::onednn_linear``, which calls the same kernel:
     TorchInductor lowers oneDNN's linear only for the constant weights of a frozen model, and takes a custom

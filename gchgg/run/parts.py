@@ -1,7 +1,7 @@
 """The parts of one training run, built from its config: envs, metric, sampler, buffer, relabelling, agent, goals.
 
-:func:`make_parts` checks the composed config (:func:`gchgg.config.check`) and reads it (and only it)
-into the explicit arguments of the builders in :mod:`gchgg.builders`; the :class:`~gchgg.train.Trainer`
+:func:`make_parts` checks the composed config (:func:`gchgg.run.config.check`) and reads it (and only it)
+into the explicit arguments of the builders in :mod:`gchgg.run.builders`; the :class:`~gchgg.train.Trainer`
 only runs the loop over what it returns, so a test or a notebook can build a trainer from parts it
 made itself. Every random stream of a run comes from one named seed table (:func:`seed_table`).
 """
@@ -18,9 +18,10 @@ from omegaconf import DictConfig
 from torchrl.envs import TransformedEnv
 
 import envs
-from gchgg import config
-from gchgg.agent import DDPGAgent
-from gchgg.builders import (
+from gchgg.ddpg.agent import DDPGAgent
+from gchgg.hgg import estimate_max_distance
+from gchgg.run import config
+from gchgg.run.builders import (
     make_goal_generator,
     make_metric,
     make_observation_noise,
@@ -29,7 +30,6 @@ from gchgg.builders import (
     make_sampler,
     make_tradeoff,
 )
-from gchgg.hgg import estimate_max_distance
 
 __all__ = ["SEEDS", "Parts", "make_env", "make_parts", "seed_table"]
 
@@ -82,7 +82,7 @@ class Parts:
 
 
 def make_parts(cfg: DictConfig) -> Parts:
-    """Check the config (:func:`gchgg.config.check`) and build a run's parts from it. Sets torch's thread
+    """Check the config (:func:`gchgg.run.config.check`) and build a run's parts from it. Sets torch's thread
     count (``threads``) and its global seed; the order of the builds is that of the recorded runs."""
     run = config.check(cfg)
     if cfg.threads:

@@ -1,8 +1,8 @@
 """Curves and tables over seeds: median and interquartile range of a metric per group of runs.
 
-    python -m gchgg.plot RUN_OR_SWEEP_OR_CSV... [--out FIG.png] [--table TABLE.md] [--y COLUMN...]
-    python -m gchgg.plot docs/results/push_new --compare gchgg ghgg [--budget N] [--auc-range R]
-    python -m gchgg.plot docs/results/push_new/forks --pairs gchgg ghgg
+    python -m gchgg.analysis.plot RUN_OR_SWEEP_OR_CSV... [--out FIG.png] [--table TABLE.md] [--y COLUMN...]
+    python -m gchgg.analysis.plot docs/results/push_new --compare gchgg ghgg [--budget N] [--auc-range R]
+    python -m gchgg.analysis.plot docs/results/push_new/forks --pairs gchgg ghgg
 
 Each argument is a run folder (``metrics.csv`` and the ``config.yaml`` the trainer saves), a folder
 holding such runs at any depth (a sweep), a ``metrics.csv``-style file, or a folder of such files
@@ -27,7 +27,7 @@ variant trains the same way from there), the mean
 hours, and seconds per iteration (a run's median: what an iteration of the method costs).
 
 Two scores per run, summarised per group by their interquartile mean with a 95 % stratified-bootstrap
-interval (:mod:`gchgg.stats`, rliable's definitions), are in the table too:
+interval (:mod:`gchgg.analysis.stats`, rliable's definitions), are in the table too:
 
 - **first ≥ 0.9**, censored: :func:`first_at` 0.9 if it is below the run's budget B. A run that did
   not get there is *censored* at ``C = min(L, B)``, L its last iteration + 1 (the number of
@@ -53,7 +53,7 @@ run of B on each score (fewer iterations to 0.9; a larger AUC), with its 95 % in
 the table (``--table`` and ``--out`` still write theirs). ``--looks N1 N2 …`` names the looks of a
 sequential design, planned before its first: the comparison is read at N1, N2, … runs per group (runs
 added until an interval decides, at most the last look's); the intervals are then drawn at Pocock's
-level for all those looks (:func:`gchgg.stats.sequential_alpha`), and the groups' present run count
+level for all those looks (:func:`gchgg.analysis.stats.sequential_alpha`), and the groups' present run count
 must be one of them. Without ``--looks``, runs of several tasks (``docs/results/push_new
 docs/results/pick_obstacle``) add a line averaging each score's probability over the tasks (rliable's
 average probability of improvement, each task's runs resampled apart), as the claims table's
@@ -63,13 +63,13 @@ average probability of improvement, each task's runs resampled apart), as the cl
 task kept in several folders, e.g. a Fig. 6 ablation's CSVs (``docs/results/fig6/eta/500-seed0.csv``,
 group ``500``) beside the default setting's runs (``docs/results/pick_no_obstacle/gchgg-seed0.csv``)::
 
-    python -m gchgg.plot docs/results/fig6/eta/*.csv docs/results/pick_no_obstacle/gchgg-seed[012].csv \
+    python -m gchgg.analysis.plot docs/results/fig6/eta/*.csv docs/results/pick_no_obstacle/gchgg-seed[012].csv \
         --task pick_no_obstacle --y success_rate lambda diversity_decided --out eta.png --table eta.md
 
 ``--pairs A B`` pairs the runs of A and B by seed (paired forks: two forks of one checkpoint with the
-same new seed, :mod:`gchgg.fork`) and prints, per pair, both runs' HGG stop iteration and first
+same new seed, :mod:`gchgg.run.fork`) and prints, per pair, both runs' HGG stop iteration and first
 iteration at ≥ 0.9 (censored as above, marked ``>``), their differences A − B, and per score the mean
-paired difference with its 95 % bootstrap interval over pairs (:func:`gchgg.stats.paired_difference_interval`)
+paired difference with its 95 % bootstrap interval over pairs (:func:`gchgg.analysis.stats.paired_difference_interval`)
 and how many pairs A was ahead, level and behind in.
 """
 
@@ -87,14 +87,14 @@ from pathlib import Path
 
 import numpy as np
 
-from gchgg import stats
+from gchgg.analysis import stats
 
 __all__ = ["Run", "Scores", "auc", "auc_range", "average_poi", "budget_of", "compare", "find_runs", "first_score",
            "format_looks", "group_runs", "iqr", "paired", "plot", "scores", "seed_of", "table"]
 
 _IGNORED = ("seed", "resume", "threads", "matmul", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
 _SEED_SUFFIX = re.compile(r"-seed\d+$")
-_EXPERIMENTS = Path(__file__).resolve().parents[1] / "conf" / "experiment"  # fig5_<task>.yaml: the tasks' budgets
+_EXPERIMENTS = Path(__file__).resolve().parents[2] / "conf" / "experiment"  # fig5_<task>.yaml: the tasks' budgets
 THRESHOLD = 0.9
 """The success rate whose first iteration is the scores' "first ≥ 0.9"."""
 
@@ -382,12 +382,12 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
             looks: Sequence[int] | None = None) -> list[str]:
     """Per task holding both groups, one line: P(a run of ``first`` beats a run of ``second``) on first ≥ 0.9
     (strictly fewer iterations; a censored run read as its censoring iteration, a bound, and its pairs as
-    in :func:`gchgg.stats.probability_of_improvement`: :attr:`Scores.first_bound`) and
+    in :func:`gchgg.analysis.stats.probability_of_improvement`: :attr:`Scores.first_bound`) and
     on the AUC (larger; over the range :func:`auc_range` gives the two groups' runs, or ``auc_iterations``),
     each with its 95 % interval and the runs it rests on; with ``looks`` (the runs per group at each planned
     look of a sequential design, the present count among them), at Pocock's level for those looks instead.
     Without ``looks``, where two or more tasks hold both groups, a last line averages both figures over those
-    tasks (:func:`gchgg.stats.average_poi_interval`)."""
+    tasks (:func:`gchgg.analysis.stats.average_poi_interval`)."""
     labels = {label for _, label in groups}
     for name in (first, second):
         if name not in labels:
@@ -427,7 +427,7 @@ def compare(groups: dict[tuple[str, str], list[Run]], first: str, second: str, b
 def average_poi(pairs: Sequence[tuple[Scores, Scores]], score: str = "first",
                 rng: np.random.Generator | None = None) -> stats.Estimate:
     """P(a run of the first group beats one of the second) averaged over tasks, one ``(first, second)`` pair of
-    :class:`Scores` per task (:func:`gchgg.stats.average_poi_interval`), on ``score``: ``"first"`` (fewer
+    :class:`Scores` per task (:func:`gchgg.analysis.stats.average_poi_interval`), on ``score``: ``"first"`` (fewer
     iterations to 0.9, censored runs as in :func:`compare`) or ``"auc"`` (a larger area)."""
     if score == "auc":
         return stats.average_poi_interval([a.auc for a, _ in pairs], [b.auc for _, b in pairs], rng=rng)
@@ -460,7 +460,7 @@ def paired(groups: dict[tuple[str, str], list[Run]], first: str, second: str, bu
     the mean paired difference A − B with its 95 % interval and how many pairs A was ahead (fewer
     iterations), level and behind in, and below it the same runs' difference taken unpaired (the two
     groups resampled apart) with the partners' Pearson correlation (pairing narrows the interval only
-    where partners correlate) and the small-sample tests of :func:`gchgg.stats.paired_tests`. Runs
+    where partners correlate) and the small-sample tests of :func:`gchgg.analysis.stats.paired_tests`. Runs
     without a partner are named and left out."""
     labels = {label for _, label in groups}
     for name in (first, second):

@@ -3,7 +3,7 @@
 An incremental checkpoint stores the replay data once. Every ``buffer.extend`` of an iteration is
 recorded (the row indices the writer chose and the rows); at a checkpoint, :meth:`ReplayLog.flush`
 writes each recorded iteration to ``<folder>/iteration-<k>.pt`` (atomic and checksummed, by
-:func:`gchgg.checkpoint.save`), the checkpoint itself then holds only :meth:`ReplayLog.manifest` (the
+:func:`gchgg.common.files.save`), the checkpoint itself then holds only :meth:`ReplayLog.manifest` (the
 files that still hold live rows, oldest first), and :meth:`ReplayLog.prune` deletes the files whose
 every row a later file has overwritten. :meth:`ReplayLog.restore` writes the listed files' rows back
 into an empty storage at their indices, oldest first, which rebuilds the stored rows exactly as they
@@ -31,7 +31,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.data.replay_buffers.storages import Storage
 
-from gchgg import checkpoint
+from gchgg.common import files
 
 __all__ = ["RENAMED", "ReplayLog", "read"]
 
@@ -43,9 +43,9 @@ def read(path: Path) -> dict:
     """A replay file's ``{"iteration", "index", "rows"}``, its rows under today's key names (:data:`RENAMED`).
 
     Raises:
-        gchgg.checkpoint.CorruptCheckpointError: the file is truncated, altered or not a replay file.
+        gchgg.run.files.CorruptCheckpointError: the file is truncated, altered or not a replay file.
     """
-    saved = checkpoint.load(path)
+    saved = files.load(path)
     rows = saved["rows"]
     for old, new in RENAMED.items():
         if old in rows.keys():
@@ -82,7 +82,7 @@ class ReplayLog:
             index = torch.cat([i for i, _ in parts])
             rows = torch.cat([r for _, r in parts]) if len(parts) > 1 else parts[0][1]
             name = _PATTERN.format(iteration)
-            checkpoint.save({"iteration": iteration, "index": index, "rows": rows}, self.folder / name, mode=0o644)
+            files.save({"iteration": iteration, "index": index, "rows": rows}, self.folder / name, mode=0o644)
             self._files = [(n, i) for n, i in self._files if n != name] + [(name, index)]
         self._pending.clear()
 
@@ -105,7 +105,7 @@ class ReplayLog:
 
         Raises:
             FileNotFoundError: a listed file is missing (named).
-            gchgg.checkpoint.CorruptCheckpointError: a listed file is truncated or altered (named).
+            gchgg.run.files.CorruptCheckpointError: a listed file is truncated or altered (named).
         """
         self._files, self._pending = [], {}
         for name in manifest:

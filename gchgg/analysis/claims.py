@@ -1,16 +1,16 @@
 """The claims table: each of the paper's claims (a hand-written YAML list) against the committed runs, with a verdict.
 
-    python -m gchgg.claims docs/results --out docs/results/claims.md [--claims docs/results/claims.yaml]
+    python -m gchgg.analysis.claims docs/results --out docs/results/claims.md [--claims docs/results/claims.yaml]
 
 Reads the runs of each claim's task from the files ``<results>/<task>/<group>-seed<N>.csv`` (every seed
 there; not ``unfinished/`` nor ``invalid/``), or, for a claim with ``runs`` (a mapping of each of its
 groups to a glob under ``<results>``, e.g. Fig. 6's ablations against the default runs: ``{"500":
 fig6/eta/500-seed*.csv, gchgg: pick_no_obstacle/gchgg-seed[012].csv}``), from those files, every run
-taken as one of the claim's task (its budget); and scores them as :mod:`gchgg.plot` does (first ≥ 0.9: a run
+taken as one of the claim's task (its budget); and scores them as :mod:`gchgg.analysis.plot` does (first ≥ 0.9: a run
 that never got there is censored at its budget or its end, whichever comes first, and counted one
 past it; the success rate held past a run's end) and writes a Markdown table: per
 claim the claim, the paper's figure, the measured one (IQM [95 % CI] or a probability of improvement
-[95 % CI], :mod:`gchgg.stats`; the runs it rests on) and a verdict, *holds*, *contradicted* or
+[95 % CI], :mod:`gchgg.analysis.stats`; the runs it rests on) and a verdict, *holds*, *contradicted* or
 *undecided*, with its reason. Below the table, one line per verdict lists its claims: the lines the
 README quotes.
 
@@ -28,23 +28,23 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
   (a run that reached 0.9 and ended before its budget: the stop rule ended it soon after holding 0.9,
   so its last value says nothing of a policy trained on to the budget); else undecided.
 - ``faster`` (``than`` B): P(a run of the group reaches 0.9 in fewer iterations than a run of B), ties
-  and pairs whose order censoring leaves open counted half (:func:`gchgg.stats.probability_of_improvement`).
+  and pairs whose order censoring leaves open counted half (:func:`gchgg.analysis.stats.probability_of_improvement`).
   Holds if its CI lies above 0.5, contradicted if below 0.5, else undecided.
-- ``faster_paired`` (``than`` B, ``pairs`` F): paired forks (:mod:`gchgg.fork`) in ``<results>/<task>/F/``,
+- ``faster_paired`` (``than`` B, ``pairs`` F): paired forks (:mod:`gchgg.run.fork`) in ``<results>/<task>/F/``,
   the group's and B's runs paired by seed: the mean paired difference group − B of first ≥ 0.9
-  (:func:`gchgg.stats.paired_difference_interval`; a censored run counted one past its censoring
+  (:func:`gchgg.analysis.stats.paired_difference_interval`; a censored run counted one past its censoring
   iteration; the measured figure adds the paired t-test's p, a check on a bootstrap interval that is
   too narrow with few pairs, which the verdict does not read). Holds if its CI lies below 0 (the group
   reaches 0.9 earlier), contradicted if above 0, else undecided; undecided below ``min_pairs`` pairs
   (default 8).
 - ``score: auc`` (``faster``, ``faster_pooled``, ``faster_paired``, ``alike``): the same rules on the area under the
   evaluation-success curve (the mean success over iterations 0 … R − 1, R the two groups' common
-  range, :func:`gchgg.plot.auc_range`; higher is better) instead of first ≥ 0.9: the threshold's first
+  range, :func:`gchgg.analysis.plot.auc_range`; higher is better) instead of first ≥ 0.9: the threshold's first
   crossing is noisy where a curve hovers near 0.9, the area weighs the whole curve. Default
   ``score: first``.
 - ``faster_pooled`` (``than`` B, ``tasks`` {T: n, ...}): P(a run of the group beats a run of B) as for
   ``faster``, on each task T, averaged over the tasks (rliable's average probability of improvement,
-  :func:`gchgg.stats.average_poi_interval`: each task's runs resampled apart). Read once, when each task
+  :func:`gchgg.analysis.stats.average_poi_interval`: each task's runs resampled apart). Read once, when each task
   has n runs of each group (the last look of its sequential design): holds if the CI lies above 0.5,
   contradicted if below 0.5; undecided before that, and where the CI contains 0.5.
 - ``alike`` (``than`` B, ``margin`` m): P(a run of the group reaches 0.9 in fewer iterations than a run
@@ -54,7 +54,7 @@ group it reads has fewer than ``min_runs`` runs, ``0 runs`` for a group without 
 
 ``looks`` (``reaches_by``, ``final``, ``faster``, ``alike``): the runs per group at each planned look of a
 sequential design (runs added until the interval decides, e.g. ``[3, 4, 5, 6, 7, 8, 9, 10]``): the
-interval is then drawn at Pocock's level for all those looks (:func:`gchgg.stats.sequential_alpha`), not
+interval is then drawn at Pocock's level for all those looks (:func:`gchgg.analysis.stats.sequential_alpha`), not
 at 95 %, since reading it after every added run and stopping once it decides would otherwise decide too
 often; the row is undecided while the groups' run counts differ or are not one of the looks.
 
@@ -75,7 +75,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gchgg import plot, stats
+from gchgg.analysis import plot, stats
 
 __all__ = ["Claim", "Row", "judge", "judge_paired", "judge_pooled", "load_claims", "main", "measure",
            "measure_globs", "render", "seed_files", "summary", "verdicts"]
@@ -212,7 +212,7 @@ def seed_files(folder: str | Path) -> list[Path]:
 
 
 def measure(results: str | Path, task: str) -> tuple[dict[str, plot.Scores], dict[str, tuple[np.ndarray, int, int]]]:
-    """The runs of ``<results>/<task>/<group>-seed<N>.csv`` by group: their :class:`gchgg.plot.Scores` (the
+    """The runs of ``<results>/<task>/<group>-seed<N>.csv`` by group: their :class:`gchgg.analysis.plot.Scores` (the
     AUC's range common to all the task's groups), and each run's success rate at the last iteration of
     its budget (held past its end) with how many runs stopped early by the stop rule (reached 0.9 and
     ended before their budget) and the budget's last iteration. Empty if there are no such files."""
@@ -280,7 +280,7 @@ def _off_look(claim: Claim, *runs: int) -> str:
 
 @functools.cache
 def _pocock_alpha(looks: tuple[int, ...]) -> float:
-    """:func:`gchgg.stats.sequential_alpha` of the looks, simulated once per design (claims share designs)."""
+    """:func:`gchgg.analysis.stats.sequential_alpha` of the looks, simulated once per design (claims share designs)."""
     return stats.sequential_alpha(looks)
 
 
@@ -384,7 +384,7 @@ def judge(claim: Claim, scores: dict[str, plot.Scores], finals: dict[str, tuple[
 def judge_pooled(claim: Claim, task_groups: Callable[[str], dict[tuple[str, str], list[plot.Run]]],
                  min_runs: int = 3) -> Row:
     """A ``faster_pooled`` claim's row: the probability of improvement averaged over ``claim.tasks``, whose runs
-    ``task_groups(task)`` gives (grouped as :func:`gchgg.plot.group_runs`), each task scored on its own."""
+    ``task_groups(task)`` gives (grouped as :func:`gchgg.analysis.plot.group_runs`), each task scored on its own."""
     scored, counts, few = [], [], []
     for task, _ in claim.tasks:
         pair = {key: runs for key, runs in task_groups(task).items() if key[1] in (claim.group, claim.than)}
@@ -398,7 +398,7 @@ def judge_pooled(claim: Claim, task_groups: Callable[[str], dict[tuple[str, str]
     runs_text = ", ".join(f"{task} {a} vs {b}" for task, a, b in counts) + " runs"
     if len(scored) < len(claim.tasks):
         return Row(claim, f"—; {runs_text}", "undecided", "; ".join(few), True)
-    scored.sort(key=lambda item: item[0])  # the tasks' resampling order as gchgg.plot --compare's: the same digits
+    scored.sort(key=lambda item: item[0])  # the tasks' resampling order as plot --compare's: the same digits
     poi = plot.average_poi([(a, b) for _, a, b in scored], claim.score)
     on = "AUC (each task over its two groups' common range)" if claim.score == "auc" else f"first ≥ {plot.THRESHOLD}"
     text = (f"P({claim.group} beats {claim.than}) on {on}, averaged over {len(scored)} tasks: {poi.format(2)}; "
@@ -470,7 +470,7 @@ def verdicts(results: str | Path, claims: Sequence[Claim], min_runs: int = 3, sl
             loaded[key] = _glob_runs(results, c.task, c.runs) if c.runs else task_groups(c.task)
             measured[key] = _measure(loaded[key]) if loaded[key] else ({}, {})
         scores, finals = measured[key]
-        if c.score == "auc":  # the AUC over the two groups' own common range, as gchgg.plot --compare reads it
+        if c.score == "auc":  # the AUC over the two groups' own common range, as gchgg.analysis.plot --compare reads it
             pair = {k: runs for k, runs in loaded[key].items() if k[1] in (c.group, c.than)}
             scores = {label: s for (_, label), s in plot.scores(pair).items()} if pair else {}
         rows.append(judge(c, scores, finals, min_runs, slack))
@@ -508,11 +508,11 @@ def render(rows: Sequence[Row], command: str, min_runs: int = 3, slack: float = 
         "one past it (the Fig. 5 budgets: `conf/experiment/fig5_<task>.yaml`; the runs: `<task>/<group>-seed<N>.csv`).",
         "IQM [95 % CI]: interquartile mean over runs with a",
         "stratified-bootstrap interval; P(A beats B): probability of improvement, ties counted half",
-        f"(`gchgg/stats.py`, rliable's definitions). Undecided below {min_runs} runs per group; \"by N\" claims hold",
-        f"up to N + {100 * slack:g} %. Paired forks (`<task>/<subfolder>/`, runs paired by seed): the mean paired",
-        f"difference with a bootstrap interval over pairs, undecided below {min_pairs} pairs. A claim whose",
-        "runs lie elsewhere (Fig. 6: `fig6/<ablation>/<value>-seed<N>.csv` against the default runs) names",
-        "their files in claims.yaml (`runs:`); each is scored under its claim's task's budget. A pooled claim",
+        f"(`gchgg/analysis/stats.py`, rliable's definitions). Undecided below {min_runs} runs per group;",
+        f"\"by N\" claims hold up to N + {100 * slack:g} %. Paired forks (`<task>/<subfolder>/`, runs paired by seed):",
+        f"the mean paired difference with a bootstrap interval over pairs, undecided below {min_pairs} pairs.",
+        "A claim whose runs lie elsewhere (Fig. 6: `fig6/<ablation>/<value>-seed<N>.csv` against the default runs)",
+        "names their files in claims.yaml (`runs:`); each is scored under its claim's task's budget. A pooled claim",
         "averages P(A beats B) over its tasks (rliable's average probability of improvement, each task's runs",
         "resampled apart) and is read once, when each task has the runs claims.yaml plans for it.",
         "",
@@ -541,7 +541,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         parser.error(f"--claims {claims_path}: no such file; pass the claims' YAML file")
     claims, settings = load_claims(claims_path)
     rows = verdicts(results, claims, **settings)
-    command = f"python -m gchgg.claims {args.results}" + (f" --claims {args.claims}" if args.claims else "") + (
+    command = f"python -m gchgg.analysis.claims {args.results}" + (
+        f" --claims {args.claims}" if args.claims else "") + (
         f" --out {args.out}" if args.out else "")
     text = render(rows, command, **settings)
     print(text, end="")

@@ -56,7 +56,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from gchgg import checkpoint
+from gchgg.run import checkpoint
 
 __all__ = ["MAY_DIFFER", "Fork", "changed_settings", "check_resume", "prepare", "start"]
 

@@ -1,0 +1,1 @@
+"""The bottom layer: checks, atomic checksummed files, the table of moved modules; imports nothing of gchgg."""
