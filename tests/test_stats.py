@@ -241,3 +241,42 @@ def test_the_median_interval_is_the_percentiles_of_a_resampling_loop():
         stats.median_interval([])
     with pytest.raises(ValueError, match="reps=0"):
         stats.median_interval([1.0], reps=0)
+
+
+def test_the_paired_interval_is_the_percentiles_of_a_pair_resampling_loop():
+    """Differences that vary: the interval is the 2.5 / 97.5 % points of a plain loop over the same draws."""
+    x, y = np.array([80.0, 75.0, 90.0, 70.0, 66.0]), np.array([84.0, 77.0, 90.0, 75.0, 60.0])  # -4 -2 0 -5 6
+    got = stats.paired_difference_interval(x, y, reps=500, rng=np.random.default_rng(3))
+    draws = np.random.default_rng(3).integers(0, 5, size=(500, 5))
+    means = [float(np.mean([x[i] - y[i] for i in row])) for row in draws]
+    assert got.point == pytest.approx(-1.0)
+    assert (got.low, got.high) == pytest.approx(tuple(np.percentile(means, [2.5, 97.5])))
+    assert got.low < -1.0 < got.high
+
+
+def test_the_hierarchical_interval_counts_checkpoints_not_pairs():
+    """Two checkpoints whose forks differ by 0 and by 10: resampling pairs alone hides that the checkpoint
+    decides; the two-stage bootstrap spans both checkpoints' means."""
+    flat_pairs = [0.0, 0.0, 0.0, 0.0, 10.0, 10.0, 10.0, 10.0]
+    both = stats.hierarchical_difference_interval([[0.0] * 4, [10.0] * 4], rng=np.random.default_rng(0))
+    flat = stats.paired_difference_interval(flat_pairs, [0.0] * 8, rng=np.random.default_rng(0))
+    assert both.point == flat.point == 5.0 and (both.runs, both.other_runs) == (8, 2)
+    assert (both.low, both.high) == (0.0, 10.0)  # a resample may draw one checkpoint twice
+    assert flat.low > 0.0 and flat.high < 10.0
+    one = stats.hierarchical_difference_interval([[1.0, 3.0, 5.0]], reps=4000, rng=np.random.default_rng(1))
+    pairs = stats.paired_difference_interval([1.0, 3.0, 5.0], [0.0] * 3, reps=4000, rng=np.random.default_rng(2))
+    assert one.point == 3.0 and abs(one.low - pairs.low) <= 0.34 and abs(one.high - pairs.high) <= 0.34
+
+
+def test_the_hierarchical_interval_matches_a_two_stage_loop_in_distribution():
+    groups = [np.array([1.0, 2.0, 9.0]), np.array([4.0, 4.5]), np.array([-3.0, 0.0, 1.0, 2.0])]
+    rng = np.random.default_rng(7)
+    loop = []
+    for _ in range(20_000):
+        chosen = [groups[k] for k in rng.integers(0, 3, size=3)]
+        loop.append(np.mean([g[rng.integers(0, len(g), size=len(g))].mean() for g in chosen]))
+    got = stats.hierarchical_difference_interval(groups, reps=20_000, rng=np.random.default_rng(8))
+    assert got.point == pytest.approx(np.mean([g.mean() for g in groups]))
+    assert (got.low, got.high) == pytest.approx(tuple(np.percentile(loop, [2.5, 97.5])), abs=0.15)
+    with pytest.raises(ValueError, match="one non-empty vector of finite paired differences per checkpoint"):
+        stats.hierarchical_difference_interval([[1.0], []])

@@ -51,9 +51,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Estimate", "average_poi_interval", "bootstrap_indices", "iqm", "iqm_interval", "median_interval",
-           "paired_difference_interval", "paired_tests", "poi_interval", "probability_of_improvement",
-           "sequential_alpha", "unpaired_difference_interval"]
+__all__ = ["Estimate", "average_poi_interval", "bootstrap_indices", "hierarchical_difference_interval", "iqm",
+           "iqm_interval", "median_interval", "paired_difference_interval", "paired_tests", "poi_interval",
+           "probability_of_improvement", "sequential_alpha", "unpaired_difference_interval"]
 
 REPS = 2000
 """Bootstrap resamples per interval (rliable's default)."""
@@ -282,6 +282,37 @@ def paired_difference_interval(x, y, *, reps: int = REPS, alpha: float = ALPHA,
     idx = _rng(rng).integers(0, len(difference), size=(reps, len(difference)))
     low, high = _percentiles(difference[idx].mean(1), alpha)
     return Estimate(float(difference.mean()), low, high, len(difference))
+
+
+def hierarchical_difference_interval(differences, *, reps: int = REPS, alpha: float = ALPHA,
+                                     rng: np.random.Generator | None = None) -> Estimate:
+    """The mean paired difference over forks from several checkpoints, and its two-stage bootstrap interval.
+
+    ``differences`` holds one vector of paired differences ``x − y`` per checkpoint (the forks of one
+    checkpoint share its first iterations, so they are not independent of each other). Each resample
+    draws as many checkpoints as there are, with replacement, then within each drawn checkpoint as many
+    of its pairs, with replacement; the statistic is the mean over checkpoints of their mean difference
+    (each checkpoint weighs the same). ``runs`` counts the pairs, ``other_runs`` the checkpoints.
+
+    >>> hierarchical_difference_interval([[1.0, 3.0], [2.0, 2.0, 2.0]]).point  # means 2 and 2
+    2.0
+    """
+    _check(reps, alpha)
+    groups = [np.asarray(d, dtype=float) for d in differences]
+    if not groups or any(g.ndim != 1 or not len(g) or not np.isfinite(g).all() for g in groups):
+        raise ValueError("hierarchical_difference_interval needs one non-empty vector of finite paired "
+                         f"differences per checkpoint, got {len(groups)} vectors")
+    rng = _rng(rng)
+    drawn = rng.integers(0, len(groups), size=(reps, len(groups)))  # stage 1: the checkpoints of each resample
+    slots = np.empty((reps, len(groups)))
+    for slot in range(len(groups)):  # stage 2, per slot: the drawn checkpoint's pairs, resampled anew
+        for k, group in enumerate(groups):  # (a handful of checkpoints: K² small resamples)
+            within = group[rng.integers(0, len(group), size=(reps, len(group)))].mean(1)
+            slots[:, slot] = np.where(drawn[:, slot] == k, within, slots[:, slot])
+    samples = slots.mean(1)
+    low, high = _percentiles(samples, alpha)
+    point = float(np.mean([g.mean() for g in groups]))
+    return Estimate(point, low, high, sum(len(g) for g in groups), len(groups))
 
 
 def unpaired_difference_interval(x, y, *, reps: int = REPS, alpha: float = ALPHA,
