@@ -12,8 +12,10 @@ import pytest
 import torch
 from scipy.sparse.csgraph import dijkstra
 
+import gchgg.graph.grid
 import gchgg.graph.lattice
 import gchgg.graph.metric
+import gchgg.graph.table
 from gchgg.graph import (
     DEFAULT_MARGIN,
     DEFAULT_N,
@@ -389,6 +391,17 @@ def test_cache_roundtrip_and_key(tmp_path):
     assert first.cache_path.stat().st_mode & 0o777 == 0o644  # readable like any cache file
 
 
+def test_cache_file_name_is_stable(tmp_path):
+    # Cache files written before the graph's modules were split (format 2) must still be found: the key
+    # hashes the same settings and format as then.
+    assert wall_graph(cache_dir=tmp_path).cache_path.name == "goalgraph-d64627766ad9815909b337b1d57a03c8.bin"
+
+
+def test_public_names_stay_importable_from_the_lattice_module():
+    for name in gchgg.graph.lattice.__all__:
+        assert getattr(gchgg.graph.lattice, name) is getattr(gchgg.graph, name)
+
+
 @pytest.mark.parametrize(
     "damage", ["flip_payload", "flip_header", "truncate", "append", "empty", "garbage", "other_graph"]
 )
@@ -458,5 +471,5 @@ def test_cli_draws_push_new(tmp_path, capsys):
 
 
 def test_docstring_examples_run():
-    for module in (gchgg.graph.lattice, gchgg.graph.metric):
+    for module in (gchgg.graph.grid, gchgg.graph.lattice, gchgg.graph.metric, gchgg.graph.table):
         assert doctest.testmod(module, raise_on_error=False).failed == 0

@@ -396,3 +396,13 @@ def test_panels_follow_fig5s_task_order_and_a_group_keeps_its_colour_across_pane
         "reach", "push_new", "pick_no_obstacle", "pick_obstacle", "abc", "fig6"]
     # her is missing from one task: cher keeps C0, gchgg C1 and her C2 in every panel
     assert plot.label_colours(["gchgg", "cher", "her", "gchgg"]) == {"cher": "C0", "gchgg": "C1", "her": "C2"}
+
+
+def test_names_of_the_modules_split_from_plot_stay_importable_from_it():
+    from gchgg.analysis import runs, scoring
+
+    for name in plot.__all__:
+        assert hasattr(plot, name), name
+    for module in (runs, scoring):
+        for name in module.__all__:
+            assert getattr(plot, name) is getattr(module, name), name

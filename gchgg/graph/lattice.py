@@ -1,100 +1,61 @@
-"""The obstacle-aware lattice graph :class:`GoalGraph` and its distance table d_G (Sec. III-C, IV-B, eqs. 8–14).
+"""The obstacle-aware lattice graph :class:`GoalGraph`: goals to vertices (eq. 14) and d_G from its table (eq. 13).
 
 A :class:`GoalGraph` lays an orthorhombic lattice over a box-shaped goal-space field (eqs. 9–10; a
 3-D box, or a 2-D rectangle for a planar goal space), removes the vertices inside every obstacle
 inflated by a safety margin ε (Sec. IV-B), joins each remaining vertex to its 26 neighbours (8 in
-2-D) with edges weighted by their length (eq. 11) and holds all
-pairwise shortest-path distances in a compact table. :meth:`GoalGraph.distance` maps goals to
-vertices (eq. 14) and reads the table (eq. 13) with vectorised torch ops; it is ``inf`` where a goal
-lies outside the field or on a removed vertex. :class:`EuclideanMetric` offers the same
-``distance(a, b)``, so every algorithm switches metric by configuration.
+2-D) with edges weighted by their length (eqs. 11–12: :mod:`gchgg.graph.grid`) and holds all
+pairwise shortest-path distances in a compact table, cached on disk (:mod:`gchgg.graph.table`).
+:meth:`GoalGraph.distance` maps goals to vertices (eq. 14) and reads the table (eq. 13) with
+vectorised torch ops; it is ``inf`` where a goal lies outside the field or on a removed vertex.
+:class:`EuclideanMetric` offers the same ``distance(a, b)``, so every algorithm switches metric by
+configuration.
 
-Decisions where the paper is silent (the README's graph section repeats them):
+Decisions where the paper is silent (``docs/graph.md`` repeats them; the obstacles' and the density
+criterion's are in :mod:`gchgg.graph.grid`, the table's and the cache's in :mod:`gchgg.graph.table`):
 
 * **Goal → vertex (eq. 14).** The paper writes ⌊·⌋ but defines it as rounding to the closest
   integer, and the original code rounds: the default ``snap="nearest"`` maps a goal to its nearest
   lattice vertex; ``snap="floor"`` is the literal floor (the vertex below-left of the goal).
-* **Obstacles.** An obstacle ``(center, half)`` becomes the closed box ``center ± (half + margin)``;
-  a vertex on its surface is removed. Obstacles that miss the field are ignored (with a warning).
-* **Density criterion (eq. 12).** For every inflated obstacle, the part inside the field must be
-  longer than the lattice spacing ``2·half_field/(n − 1)`` on each axis, strictly. That guarantees a
-  removed vertex on every lattice line through the obstacle, so no edge jumps across it.
-* **Table.** Distances between free vertices are stored once per unordered pair (the upper
-  triangle) as ``int16`` multiples of a per-table ``resolution``, with ``32767`` for "unreachable".
-  The resolution is chosen from a bound on the graph's diameter, so the rounding error is at most
-  ``resolution / 2`` (about 0.04 mm for the KUKA fields; an error over 1 mm is refused).
-* **Cache.** The table is cached on disk under :func:`default_cache_dir`, keyed by a hash of the
-  field, the obstacles, ``n``, the margin and the file format; files are written atomically and
-  checked before use (the project's checkpoint format: magic, SHA-256, length; then the graph it
-  describes and the table's shape): a damaged file is rebuilt, never used.
-  A lock file lets one process build while others constructing the same graph wait and load.
-
+* **Boundary.** A goal up to 0.01 mm outside the field (or below a lattice plane, for ``"floor"``)
+  counts as on it.
 """
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
-import itertools
-import json
-import logging
 import math
-import numbers
 import os
-import time
-import warnings
 from collections.abc import Sequence
-from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import torch
 from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.sparse.csgraph import dijkstra
 
-from gchgg.common import files
+from gchgg.graph.grid import (
+    DEFAULT_MARGIN,
+    DEFAULT_N,
+    check_density_criterion,
+    checked_settings,
+    edges,
+    free_vertices,
+    inflate,
+)
+from gchgg.graph.table import (
+    UNREACHABLE,
+    USER_CACHE_DIR,
+    _UserCacheDir,
+    build_table,
+    cache_file,
+    check_size,
+    default_cache_dir,
+    load_or_build,
+    row_offsets,
+)
 
 __all__ = ["DEFAULT_MARGIN", "DEFAULT_N", "USER_CACHE_DIR", "GoalGraph", "check_density_criterion", "default_cache_dir"]
 
-_log = logging.getLogger(__name__)
-
-DEFAULT_N: tuple[int, int, int] = (31, 31, 11)  # lattice vertices per axis (the G-HGG and GC-HGG runs)
-DEFAULT_MARGIN = 0.02  # metres: the original G-HGG code's inflation of every obstacle half-size
-
-_UNREACHABLE = 32767  # int16 table code for "no path" (and for any pair with the void slot 0)
-_MAX_CODE = _UNREACHABLE - 1  # largest code of a finite distance
-_MAX_ERROR = 1e-3  # metres: largest rounding error the 2-byte table may have
 _BOUNDARY_TOLERANCE = 1e-5  # metres: goals this close outside the field (or below a plane) are on it
-_MAX_TABLE_BYTES = 4 * 2**30  # refuse lattices whose table would not fit comfortably in memory
-_CHUNK_ROWS = 256  # Dijkstra source rows per chunk: bounds the float64 scratch at 256 × V × 8 bytes
-_FORMAT = 2  # bump when the table's layout or encoding changes: old cache files then miss (2: checkpoint format)
-_AXES = "xyz"
-
-
-def default_cache_dir() -> Path:
-    """Per-user folder for graph tables.
-
-    Returns:
-        ``$GCHGG_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/gchgg``, else ``~/.cache/gchgg``.
-    """
-    if os.environ.get("GCHGG_CACHE_DIR"):
-        return Path(os.environ["GCHGG_CACHE_DIR"]).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base).expanduser() / "gchgg"
-
-
-class _UserCacheDir:
-    """Sentinel default of ``cache_dir``: resolve :func:`default_cache_dir` at construction."""
-
-    def __repr__(self) -> str:
-        return "default_cache_dir()"
-
-
-USER_CACHE_DIR = _UserCacheDir()
-
-
-class _CorruptCache(Exception):
-    """A cache file that must not be used; the message says why."""
 
 
 class GoalGraph:
@@ -106,7 +67,7 @@ class GoalGraph:
     inside an obstacle inflated by ``margin`` are removed; the others are joined to their (up to) 26
     (2-D: 8) neighbours by edges weighted by their
     Euclidean length (eq. 11). Shortest-path distances between every pair of free vertices come
-    from Dijkstra and are kept in a 2-byte-per-pair table (see the module docstring), cached on
+    from Dijkstra and are kept in a 2-byte-per-pair table (:mod:`gchgg.graph.table`), cached on
     disk. ``distance(a, b)`` is eq. 13: the table entry of the vertices of ``a`` and ``b`` (eq. 14),
     ``inf`` if either goal is outside the field, on a removed vertex, or out of reach. Everything
     works on CPU tensors.
@@ -155,7 +116,7 @@ class GoalGraph:
         snap: Literal["nearest", "floor"] = "nearest",
         cache_dir: str | os.PathLike | None | _UserCacheDir = USER_CACHE_DIR,
     ) -> None:
-        center, half, self.n, self.margin, self.obstacles = _settings(field, obstacles, n, margin)
+        center, half, self.n, self.margin, self.obstacles = checked_settings(field, obstacles, n, margin)
         if snap not in ("nearest", "floor"):
             raise ValueError(f"snap must be 'nearest' or 'floor', got {snap!r}")
         self.field = (tuple(center.tolist()), tuple(half.tolist()))
@@ -165,20 +126,12 @@ class GoalGraph:
         self.high = center + half
         self.spacing = 2.0 * half / (np.asarray(self.n) - 1)  # eq. 9
         # eq. 12; each inflated obstacle meeting the field as (low, high), clipped to the field
-        self.inflated_obstacles = _inflate(
-            self.low, self.high, self.spacing, self.obstacles, self.margin
-        )
-        self._free = self._free_vertices()  # bool [n_x, n_y, n_z]
+        self.inflated_obstacles = inflate(self.low, self.high, self.spacing, self.obstacles, self.margin)
+        self._free = free_vertices(self.low, self.spacing, self.n, self.inflated_obstacles)  # bool [n_x, n_y, n_z]
         if not self._free.any():
             raise ValueError("every lattice vertex lies inside an inflated obstacle: the graph is empty")
         self.num_vertices = int(self._free.sum())
-        table_bytes = (self.num_vertices + 1) * (self.num_vertices + 2)  # 2 bytes per entry
-        if table_bytes > _MAX_TABLE_BYTES:
-            raise ValueError(
-                f"n={self.n} gives {self.num_vertices} free vertices, whose distance table would take "
-                f"{table_bytes / 2**30:.1f} GiB (more than {_MAX_TABLE_BYTES / 2**30:g} GiB): use a "
-                f"smaller n"
-            )
+        check_size(self.n, self.num_vertices)
         positions = self.low + np.argwhere(self._free) * self.spacing  # C order, like the slots
         self._vertices = torch.from_numpy(positions).to(torch.float32)
 
@@ -199,32 +152,16 @@ class GoalGraph:
         self._shift_w = torch.from_numpy(-center / reach)
         self._floor_shift = torch.from_numpy(tolerance)  # floor(u + tolerance): planes are "at or below"
         self._strides = torch.tensor([math.prod(self.n[k + 1 :]) for k in range(len(self.n))], dtype=torch.float64)
-        slots = self.num_vertices + 1
-        rows = torch.arange(slots, dtype=torch.int64)
-        # The upper triangle row by row: entry (r, c), r <= c, lives at _row_offset[r] + c.
-        self._row_offset = rows * slots - rows * (rows + 1) // 2
+        self._row_offset = row_offsets(self.num_vertices + 1)  # table entry (r, c), r <= c: _row_offset[r] + c
         self._adjacency: csr_matrix | None = None
-
         self._vertex_lookup: tuple[torch.Tensor, torch.Tensor] | None = None  # see pair_distance
-        self.cache_path: Path | None = None
-        self.loaded_from_cache = False
-        if cache_dir is not None:
-            if isinstance(cache_dir, _UserCacheDir):
-                folder = default_cache_dir()
-            else:
-                folder = Path(cache_dir).expanduser()
-            self.cache_path = folder / f"goalgraph-{self._cache_key()}.bin"
-        if self.cache_path is None:
-            table = self._build()
-        else:
-            # One builder at a time per table: processes started together (a multirun) wait
-            # for the first one's file instead of all building it.
-            with _file_lock(self.cache_path.with_suffix(".lock")):
-                table = self._load()
-                self.loaded_from_cache = table is not None
-                if table is None:
-                    table = self._build()
-                    self._save(table)
+
+        # Everything that changes the table (snap does not) names its cache file.
+        params = {"field": self.field, "obstacles": sorted(self.obstacles), "n": self.n, "margin": self.margin}
+        self.cache_path = cache_file(cache_dir, params)
+        table, self._scale, self.loaded_from_cache = load_or_build(
+            self.cache_path, self.num_vertices, params, lambda: build_table(self.adjacency, self.spacing)
+        )
         self._table = torch.from_numpy(table)
 
     # ------------------------------------------------------------------ public API
@@ -300,8 +237,8 @@ class GoalGraph:
             # Row offsets indexed by vertex (slot - 1; -1, the void slot, wraps to the last entry) with
             # the slot shift folded in, and the decoded distance of every int16 code.
             offset = self._row_offset + 1
-            decoded = torch.arange(_UNREACHABLE + 1, dtype=torch.float32).mul_(self._scale)
-            decoded[_UNREACHABLE] = math.inf
+            decoded = torch.arange(UNREACHABLE + 1, dtype=torch.float32).mul_(self._scale)
+            decoded[UNREACHABLE] = math.inf
             self._vertex_lookup = (torch.cat([offset[1:], offset[:1]]), decoded)
         offset, decoded = self._vertex_lookup
         code = torch.take(self._table, torch.take(offset, torch.minimum(i, j)) + torch.maximum(i, j))
@@ -358,7 +295,7 @@ class GoalGraph:
     def adjacency(self) -> csr_matrix:
         """Sparse ``[V, V]`` edge lengths between free vertices (both directions stored), eq. 11."""
         if self._adjacency is None:
-            self._adjacency = self._edges()
+            self._adjacency = edges(self._free, self.spacing)
         return self._adjacency
 
     @property
@@ -412,279 +349,4 @@ class GoalGraph:
         index = self._row_offset[torch.minimum(s, t)] + torch.maximum(s, t)
         code = self._table[index]
         distance = code.to(torch.float32).mul_(self._scale)
-        return distance.masked_fill_(code == _UNREACHABLE, math.inf)
-
-    # ------------------------------------------------------------------ construction
-
-    def _free_vertices(self) -> np.ndarray:
-        d = len(self.n)
-        axes = [self.low[k] + self.spacing[k] * np.arange(self.n[k]) for k in range(d)]
-        free = np.ones(self.n, dtype=bool)
-        tol = 1e-9  # metres: a vertex on an inflated obstacle's surface is removed despite float noise
-        for low, high in self.inflated_obstacles:
-            inside = [(axes[k] >= low[k] - tol) & (axes[k] <= high[k] + tol) for k in range(d)]
-            box = inside[0].reshape([-1] + [1] * (d - 1))
-            for k in range(1, d):  # the box's vertices: the outer product of its axes' memberships
-                box = box & inside[k].reshape([1] * k + [-1] + [1] * (d - 1 - k))
-            free &= ~box
-        return free
-
-    def _edges(self) -> csr_matrix:
-        """26-connected (2-D: 8-connected) edges between free vertices weighted by length (eq. 11), both directions."""
-        compact = np.full(self.n, -1, dtype=np.int64)
-        compact[self._free] = np.arange(self.num_vertices)
-        rows, cols, weights = [], [], []
-        d = len(self.n)
-        for step in itertools.product((-1, 0, 1), repeat=d):
-            if step <= (0,) * d:  # each undirected edge once: the 13 (2-D: 4) "forward" neighbours
-                continue
-            source = tuple(slice(max(0, -d), k - max(0, d)) for d, k in zip(step, self.n, strict=True))
-            target = tuple(slice(max(0, d), k - max(0, -d)) for d, k in zip(step, self.n, strict=True))
-            a, b = compact[source].reshape(-1), compact[target].reshape(-1)
-            keep = (a >= 0) & (b >= 0)
-            rows.append(a[keep])
-            cols.append(b[keep])
-            weights.append(np.full(int(keep.sum()), np.linalg.norm(np.asarray(step) * self.spacing)))
-        row, col, weight = (np.concatenate(x) for x in (rows + cols, cols + rows, weights + weights))
-        return csr_matrix((weight, (row, col)), shape=(self.num_vertices, self.num_vertices))
-
-    def _build(self) -> np.ndarray:
-        """All-pairs Dijkstra in chunks of source rows, rounded into the int16 upper-triangle table."""
-        start = time.perf_counter()
-        graph = self.adjacency
-        vertices = self.num_vertices
-        # Diameter bound: d(u, w) <= d(u, r) + d(r, w) <= 2 ecc(r) for any r in u's component.
-        _, label = connected_components(graph, directed=False)
-        representative = np.unique(label, return_index=True)[1]
-        reach = dijkstra(graph, directed=True, indices=representative)
-        eccentricity = max(reach[c][label == c].max() for c in range(len(representative)))
-        self._scale = max(2.0 * eccentricity, float(self.spacing.min())) / _MAX_CODE
-        if self._scale / 2 >= _MAX_ERROR:
-            raise ValueError(
-                f"graph distances up to {2 * eccentricity:.1f} m cannot be held in 2 bytes to within "
-                f"{_MAX_ERROR * 1e3:g} mm; use a smaller field"
-            )
-        slots = vertices + 1
-        table = np.empty(slots * (slots + 1) // 2, dtype=np.int16)
-        table[:slots] = _UNREACHABLE  # row of the void slot 0
-        column = np.arange(vertices)
-        for first in range(0, vertices, _CHUNK_ROWS):
-            sources = np.arange(first, min(first + _CHUNK_ROWS, vertices))
-            dist = dijkstra(graph, directed=True, indices=sources)  # float64 [chunk, V]
-            dist *= 1.0 / self._scale
-            code = np.rint(dist, out=dist)  # in place: one float64 [chunk, V] buffer per chunk
-            code[~np.isfinite(code)] = _UNREACHABLE
-            upper = code[column[None, :] >= sources[:, None]]  # row by row, each row's part j >= i
-            begin = int(self._row_offset[first + 1]) + first + 1
-            table[begin : begin + upper.size] = np.minimum(upper, _UNREACHABLE)
-        _log.info("built %d-vertex distance table in %.1f s", vertices, time.perf_counter() - start)
-        return table
-
-    # ------------------------------------------------------------------ cache
-
-    def _cache_key(self) -> str:
-        params = self._params()
-        params["format"] = _FORMAT
-        return hashlib.blake2b(json.dumps(params, sort_keys=True).encode(), digest_size=16).hexdigest()
-
-    def _params(self) -> dict[str, Any]:
-        """Everything that changes the table (``snap`` does not)."""
-        return {
-            "field": self.field,
-            "obstacles": sorted(self.obstacles),
-            "n": self.n,
-            "margin": self.margin,
-        }
-
-    def _load(self) -> np.ndarray | None:
-        """The cached table, or ``None`` if absent or damaged (a damaged file gets a warning)."""
-        path = self.cache_path
-        if not path.is_file():
-            _log.debug("no graph cache file %s", path)
-            return None
-        try:
-            table = self._check_cached(files.load(path))
-        except (files.CorruptCheckpointError, _CorruptCache, OSError, ValueError, RuntimeError) as error:
-            warnings.warn(
-                f"ignoring damaged graph cache file {path} ({error}); rebuilding it",
-                RuntimeWarning,
-                stacklevel=3,
-            )
-            return None
-        _log.info("loaded graph distance table from %s", path)
-        return table
-
-    def _check_cached(self, state: Any) -> np.ndarray:
-        """The table of a cache file's state (the project's checksummed checkpoint format), checked
-        against this graph."""
-        slots = self.num_vertices + 1
-        expected = {"format": _FORMAT, "key": self.cache_path.stem.removeprefix("goalgraph-"),
-                    "vertices": self.num_vertices}
-        if not isinstance(state, dict) or any(state.get(k) != v for k, v in expected.items()):
-            raise _CorruptCache("the file does not describe this graph")
-        table = state.get("table")
-        entries = slots * (slots + 1) // 2
-        if not isinstance(table, torch.Tensor) or table.dtype != torch.int16 or table.shape != (entries,):
-            raise _CorruptCache(f"the table is not int16 [{entries}]")
-        scale = state.get("scale")
-        if not isinstance(scale, float) or not 0 < scale < 2 * _MAX_ERROR:
-            raise _CorruptCache(f"bad resolution {scale!r}")
-        self._scale = scale
-        return table.numpy()
-
-    def _save(self, table: np.ndarray) -> None:
-        """Write the table with the project's atomic, checksummed writer (:func:`gchgg.common.files.save`)."""
-        path = self.cache_path
-        state = {
-            "format": _FORMAT,
-            "key": path.stem.removeprefix("goalgraph-"),
-            "vertices": self.num_vertices,
-            "scale": self._scale,
-            "params": self._params(),
-            "table": torch.from_numpy(table),
-        }
-        try:
-            files.save(state, path, mode=0o644)  # readable like any cache file
-        except OSError as error:
-            warnings.warn(
-                f"could not write graph cache file {path} ({error}); continuing without it",
-                RuntimeWarning,
-                stacklevel=3,
-            )
-
-
-@contextlib.contextmanager
-def _file_lock(path: Path):
-    """Hold an exclusive advisory lock on ``path`` (POSIX ``flock``); a no-op where impossible."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        file = open(path, "a")
-    except OSError:  # read-only or missing folder: the cache write will warn
-        yield
-        return
-    with file:
-        try:
-            import fcntl
-
-            fcntl.flock(file, fcntl.LOCK_EX)
-        except (ImportError, OSError):  # no flock on this platform or file system
-            pass
-        yield  # closing the file releases the lock, also if the holder dies
-
-
-# ---------------------------------------------------------------------- validation helpers
-
-
-def check_density_criterion(
-    field: tuple[Sequence[float], Sequence[float]],
-    obstacles: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
-    n: Sequence[int] = DEFAULT_N,
-    margin: float = DEFAULT_MARGIN,
-) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
-    """Check a graph's settings and the density criterion (eq. 12) without building the graph.
-
-    Args:
-        field, obstacles, n, margin: as for :class:`GoalGraph`.
-
-    Returns:
-        Each inflated obstacle that meets the field, as ``(low, high)`` corners clipped to the field.
-
-    Raises:
-        ValueError: as :class:`GoalGraph` does for bad settings or a violated criterion.
-    """
-    center, half, n, margin, obstacles = _settings(field, obstacles, n, margin)
-    return _inflate(center - half, center + half, 2.0 * half / (np.asarray(n) - 1), obstacles, margin)
-
-
-def _inflate(field_low, field_high, spacing, obstacles, margin):
-    """Inflate and clip every obstacle; raise if one breaks the density criterion (eq. 12)."""
-    inflated = []
-    for i, (center, half) in enumerate(obstacles):
-        low = np.maximum(np.asarray(center) - np.asarray(half) - margin, field_low)
-        high = np.minimum(np.asarray(center) + np.asarray(half) + margin, field_high)
-        if (low > high).any():
-            warnings.warn(
-                f"obstacle {i} (center={center}, half={half}) does not meet the field "
-                f"{tuple(field_low.tolist())}..{tuple(field_high.tolist())} and is ignored",
-                stacklevel=3,
-            )
-            continue
-        edge = high - low
-        bad = [k for k in range(len(spacing)) if not spacing[k] < edge[k]]
-        if bad:
-            fixes = "; ".join(
-                f"along {_AXES[k]} it spans {edge[k]:.6g} m inside the field but the spacing is "
-                f"{spacing[k]:.6g} m: the spacing must be below {edge[k]:.6g} m, "
-                f"i.e. n_{_AXES[k]} >= {math.floor((field_high[k] - field_low[k]) / edge[k]) + 2}"
-                for k in bad
-            )
-            raise ValueError(
-                f"graph density criterion (eq. 12) violated by obstacle {i} "
-                f"(center={center}, half={half}) inflated by margin {margin} m: {fixes} "
-                f"(or enlarge the margin). Each inflated obstacle must be longer than the lattice "
-                f"spacing 2*half/(n-1) on every axis, or edges could cross it."
-            )
-        inflated.append((low, high))
-    return tuple(inflated)
-
-
-def _settings(field, obstacles, n, margin):
-    """Validated ``(center, half, n, margin, obstacles)`` of a graph."""
-    center, half = _box("field", field)
-    dim = len(center)
-    if not (half > 0).all():
-        raise ValueError(
-            f"field half-sizes must be > 0 on every axis (a field of zero size has no lattice), "
-            f"got half={tuple(half.tolist())}"
-        )
-    n = _lattice_size(n, dim)
-    if isinstance(margin, bool) or not isinstance(margin, numbers.Real) or not math.isfinite(margin):
-        raise ValueError(f"margin must be a finite number of metres >= 0, got {margin!r}")
-    if margin < 0:
-        raise ValueError(f"margin must be >= 0 metres (it inflates every obstacle), got {margin!r}")
-    obstacles = tuple(
-        tuple(tuple(v.tolist()) for v in _box(f"obstacles[{i}]", box, dim)) for i, box in enumerate(obstacles)
-    )
-    return center, half, n, float(margin), obstacles
-
-
-def _box(name: str, box: Any, dim: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``(center, half)`` as two finite float64 arrays of shape [d]: d = 3 or 2 (``dim`` when given)."""
-    try:
-        center, half = box
-        center = np.asarray(center, dtype=np.float64)
-        half = np.asarray(half, dtype=np.float64)
-    except (TypeError, ValueError):
-        center = half = None
-    if (
-        center is None
-        or center.shape not in ((3,), (2,))
-        or half.shape != center.shape
-        or (dim is not None and center.shape != (dim,))
-        or not (np.isfinite(center).all() and np.isfinite(half).all())
-    ):
-        allowed = {None: "two finite (x, y, z) triples (3-D) or (x, y) pairs (2-D)",
-                   3: "two finite (x, y, z) triples, like the 3-D field",
-                   2: "two finite (x, y) pairs, like the 2-D field"}[dim]
-        raise ValueError(f"{name} must be a box (center, half) of {allowed} in metres, got {box!r}")
-    if (half < 0).any():
-        raise ValueError(f"{name} half-sizes must be >= 0, got half={tuple(half.tolist())}")
-    return center, half
-
-
-def _lattice_size(n: Any, dim: int = 3) -> tuple[int, ...]:
-    try:
-        values = list(n)
-    except TypeError:
-        values = None
-    if values is None or len(values) != dim or not all(
-        isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 2 for v in values
-    ):
-        names = "(n_x, n_y, n_z)" if dim == 3 else "(n_x, n_y), for the 2-D field"
-        raise ValueError(
-            f"n must be {'three' if dim == 3 else 'two'} integers {names}, each >= 2 (vertices per axis), got {n!r}"
-        )
-    return tuple(int(v) for v in values)
-
-
-# ---------------------------------------------------------------------- picture and CLI
+        return distance.masked_fill_(code == UNREACHABLE, math.inf)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from gchgg.graph.lattice import _AXES, GoalGraph
+from gchgg.graph.grid import _AXES
+from gchgg.graph.lattice import GoalGraph
 from gchgg.graph.metric import EuclideanMetric
 
 __all__ = ["plot_path"]
