@@ -1,6 +1,7 @@
 """The claims table: each of the paper's claims (a hand-written YAML list) against the committed runs, with a verdict.
 
     python -m gchgg.analysis.claims docs/results --out docs/results/claims.md [--claims docs/results/claims.yaml]
+    python -m gchgg.analysis.claims docs/results --readme README.md   # the README's results block (readme_results)
 
 Reads the runs of each claim's task from the files ``<results>/<task>/<group>-seed<N>.csv`` (every seed
 there; not ``unfinished/`` nor ``invalid/``), or, for a claim with ``runs`` (a mapping of each of its
@@ -78,7 +79,7 @@ import numpy as np
 from gchgg.analysis import plot, stats
 
 __all__ = ["Claim", "Row", "judge", "judge_paired", "judge_pooled", "load_claims", "main", "measure",
-           "measure_globs", "render", "seed_files", "summary", "verdicts"]
+           "measure_globs", "readme_results", "render", "replace_block", "seed_files", "summary", "verdicts"]
 
 KINDS = {"reaches_by": ("by",), "fails": ("within",), "final": ("level", "spread"), "faster": ("than",),
          "faster_pooled": ("than", "tasks"), "faster_paired": ("than", "pairs"), "alike": ("than", "margin")}
@@ -527,11 +528,87 @@ def render(rows: Sequence[Row], command: str, min_runs: int = 3, slack: float = 
     return "\n".join(lines)
 
 
+# --- The README's results block -------------------------------------------------------------------------------
+# Self-contained: it reads the claims' verdicts (verdicts, summary) and the runs' scores (measure) as they are,
+# whatever the verdict rules; the README's test checks the committed block against readme_results.
+
+README_BEGIN, README_END = "<!-- results:begin -->", "<!-- results:end -->"
+README_METHODS = ("her", "hgg", "cher", "ghgg", "gchgg")
+"""The README table's columns: Fig. 5's methods, in the paper's order."""
+README_COMMAND = "python -m gchgg.analysis.claims docs/results --readme README.md"
+
+
+def _readme_cell(scores: plot.Scores | None) -> str:
+    """One method's first ≥ 0.9 on one task: IQM [95 % CI] and n, or that no run reached 0.9."""
+    if scores is None:
+        return "—"
+    never = int(scores.censored.sum())
+    if never == scores.runs:
+        return f"none of {scores.runs} by {max(scores.censored_at)}"
+    estimate = stats.iqm_interval(scores.first, alpha=stats.ALPHA)
+    tail = f", {never} never" if never else ""
+    return f"{estimate.format(1)}, n = {scores.runs}{tail}"
+
+
+def readme_results(results: str | Path, claims_path: str | Path | None = None,
+                   readme_dir: str | Path = ".") -> str:
+    """The README's results block, markers included: per task, each Fig. 5 method's first ≥ 0.9 (IQM [95 %
+    CI], n runs; :mod:`gchgg.analysis.stats`) and the count of the task's claims by verdict, then the verdict
+    lines of :func:`summary`. Links are written relative to ``readme_dir`` (the README's folder)."""
+    import os
+
+    import yaml
+
+    results = Path(results)
+    claims_path = Path(claims_path) if claims_path else results / "claims.yaml"
+    loaded, settings = load_claims(claims_path)
+    names = (yaml.safe_load(claims_path.read_text()) or {}).get("names") or {}
+    rows = verdicts(results, loaded, **settings)
+    tasks = list(dict.fromkeys(r.claim.task for r in rows))
+    link = Path(os.path.relpath(results, readme_dir)).as_posix()
+    header = ["task (budget)", *(names.get(m, m) for m in README_METHODS), "claims: " + " / ".join(VERDICTS)]
+    lines = [
+        README_BEGIN,
+        f"<!-- written by `{README_COMMAND}`; do not edit by hand -->",
+        "",
+        f"Each method's first ≥ {plot.THRESHOLD}, the first iteration at an evaluation success rate ≥ "
+        f"{plot.THRESHOLD}: interquartile mean",
+        "[95 % bootstrap CI] over its n seeds (`<task>/<method>-seed<N>.csv`). A seed that never got there "
+        "counts one past",
+        "its budget or its end; \"none of n by N\": no seed did within N iterations. Last column: the claims "
+        "about the task",
+        f"by verdict (each with its measured figure and reason: [claims.md]({link}/claims.md)).",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
+    for task in tasks:
+        scores, _ = measure(results, task)
+        budget = max((max(s.budgets) for s in scores.values()), default=None)
+        label = f"{task} ({budget})" if budget else f"{task} (claims over several tasks)"
+        counts = [sum(r.verdict == v and r.claim.task == task for r in rows) for v in VERDICTS]
+        cells = [_readme_cell(scores.get(m)) if scores else "" for m in README_METHODS]
+        lines.append("| " + " | ".join([label, *cells, " / ".join(map(str, counts))]) + " |")
+    lines += ["", f"<details><summary>The {len(rows)} claims by verdict</summary>", "", *summary(rows), "",
+              "</details>", README_END]
+    return "\n".join(lines)
+
+
+def replace_block(text: str, block: str) -> str:
+    """``text`` with the block between the README markers (markers included) replaced by ``block``."""
+    begin, end = text.find(README_BEGIN), text.find(README_END)
+    if begin < 0 or end < begin:
+        raise ValueError(f"no {README_BEGIN} ... {README_END} block; add the two markers where the results go")
+    return text[:begin] + block + text[end + len(README_END):]
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", help="the folder holding a folder of runs per task (docs/results)")
     parser.add_argument("--claims", help="the claims' YAML file; default: <results>/claims.yaml")
     parser.add_argument("--out", help="the Markdown file to write (printed either way)")
+    parser.add_argument("--readme", help="rewrite this README's results block (between the markers "
+                        f"{README_BEGIN} and {README_END}) and print the block instead of the table")
     args = parser.parse_args(argv)
     results = Path(args.results)
     if not results.is_dir():
@@ -545,9 +622,20 @@ def main(argv: Sequence[str] | None = None) -> None:
         f" --claims {args.claims}" if args.claims else "") + (
         f" --out {args.out}" if args.out else "")
     text = render(rows, command, **settings)
-    print(text, end="")
     if args.out:
         Path(args.out).write_text(text)
+    if args.readme:
+        readme = Path(args.readme)
+        if not readme.is_file():
+            parser.error(f"--readme {args.readme}: no such file")
+        block = readme_results(results, claims_path, readme.resolve().parent)
+        try:
+            readme.write_text(replace_block(readme.read_text(), block))
+        except ValueError as error:
+            parser.error(f"--readme {args.readme}: {error}")
+        print(block)
+        return
+    print(text, end="")
 
 
 if __name__ == "__main__":
