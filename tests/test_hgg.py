@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from envs.geometry import geometry
+from envs.reward import DEFAULT_THRESHOLD
 from gchgg.graph import EuclideanMetric, GoalGraph
 from gchgg.hgg import HGGGoalGenerator, TrajectoryPool, estimate_max_distance
 
@@ -278,6 +279,21 @@ def test_stop_condition_fires_above_its_threshold_and_not_at_it(inside, stops):
         assert torch.equal(after.goals, targets)
 
 
+@pytest.mark.parametrize("offset, inside", [(0.049, 1.0), (0.051, 0.0)])
+def test_the_stop_counts_goals_within_5_cm_of_any_target_of_the_call(offset, inside):
+    """One pool trajectory serves both targets (``small_pool="repeat"``): both goals sit ``offset`` from
+    target A, so B's goal is half a metre from its own target and ``offset`` from A's. Within 5 cm of
+    some target (0.049 m) both count; at 0.051 m neither does, whatever target is asked. (The trajectory
+    comes down the y axis to the spot, its point nearest to both targets.)"""
+    a, b = torch.tensor([0.0, 0.0, 0.0]), torch.tensor([0.5, 0.0, 0.0])
+    spot = a + torch.tensor([0.0, offset, 0.0])
+    generator = generator_with(line((0.0, 0.5, 0.0), spot.tolist())[None], stop_threshold=0.5)
+    result = generator.generate(torch.stack([a, b]), torch.stack([a, b]))
+    assert result.from_pool and torch.allclose(result.goals, spot.expand(2, 3))
+    assert result.inside_fraction == inside
+    assert generator.stopped is (inside > 0.5)
+
+
 def test_stop_condition_off_by_default():
     trajectories, starts, targets = stop_case(10)
     generator = generator_with(trajectories)
@@ -386,3 +402,21 @@ def test_docstring_examples_run():
     import gchgg.hgg
 
     assert doctest.testmod(gchgg.hgg).failed == 0
+
+
+@pytest.mark.parametrize("task, fraction", [("push_new", 0.3), ("pick_obstacle", 0.9)])
+def test_a_run_stops_hgg_at_the_tasks_success_distance(task, fraction, tmp_path):
+    """The trainer's goal generator counts a goal as near a target within the task's 5 cm (eq. 23), and
+    stops at the task's fraction: the values the stop test above holds to."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_train import config, tiny
+
+    from gchgg.run.parts import make_parts
+
+    cfg = config([f"env={task}", "algo=ghgg", *tiny(tmp_path)])
+    generator = make_parts(cfg).goal_generator
+    assert generator.success_threshold == cfg.env.threshold == DEFAULT_THRESHOLD == 0.05  # eq. 23's 5 cm
+    assert generator.stop_threshold == cfg.env.stop_threshold == fraction
