@@ -55,7 +55,7 @@ import torch
 from scipy.optimize import linear_sum_assignment
 
 from gchgg.common.validation import check_choice, check_number
-from gchgg.ddpg.agent import DDPGConfig
+from gchgg.ddpg.loss import DDPGConfig, check_gamma
 from gchgg.graph import Metric
 
 __all__ = ["GoalGeneration", "HGGGoalGenerator", "TrajectoryPool", "estimate_max_distance"]
@@ -339,7 +339,7 @@ class HGGGoalGenerator:
         check_number("L", L, low=0, low_open=True)
         check_number("success_threshold", success_threshold, low=0)
         check_number("infinite_distance", infinite_distance, low=0, low_open=True)
-        check_number("gamma", gamma, low=0, high=1, high_open=True)
+        check_gamma(gamma)  # the agent's one rule for the discount
         if stop_threshold is not None:
             check_number("stop_threshold (a fraction, or None: never stop)", stop_threshold, low=0, high=1)
         check_choice("small_pool", small_pool, _SMALL_POOL_CHOICES)

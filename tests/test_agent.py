@@ -1,5 +1,5 @@
-"""Tests of gchgg.ddpg.agent: critic target, actor loss, target updates, normalisers, exploration,
-checkpoints, errors and a small learning check."""
+"""Tests of gchgg.ddpg (networks, loss, agent) and gchgg.fast.small_batch: critic target, actor loss, target
+updates, normalisers, exploration, checkpoints, errors, a small learning check and the one-row speed devices."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from gchgg.ddpg.agent import DDPGAgent, HindsightDDPGLoss, RunningNormalizer, make_ddpg_networks
+from gchgg.ddpg import DDPGAgent, HindsightDDPGLoss, RunningNormalizer, make_ddpg_networks
 
 OBS, GOAL, ACT = 6, 3, 2
 
@@ -476,7 +476,7 @@ def test_ddpg_learns_the_toy_value_with_reference_networks():
 
 def test_small_batch_actor_acts_as_the_module_bit_for_bit_after_updates_and_loads():
     """act() on fewer than MIN_BATCH rows skips the modules (SmallBatchActor); same actions, always."""
-    from gchgg.ddpg.agent import DDPGAgent, DDPGConfig
+    from gchgg.ddpg import DDPGAgent, DDPGConfig
     from gchgg.fast.linear import MIN_BATCH
 
     g = torch.Generator().manual_seed(0)
@@ -507,7 +507,7 @@ def test_small_batch_actor_acts_as_the_module_bit_for_bit_after_updates_and_load
 def test_rollout_policy_acts_as_act_with_exploration_call_for_call():
     """The rollout's policy gives act(explore=True)'s actions and draws, also after the statistics or a clip
     changed under it, for other shapes, and raises what act raises."""
-    from gchgg.ddpg.agent import DDPGAgent, DDPGConfig
+    from gchgg.ddpg import DDPGAgent, DDPGConfig
 
     agent = DDPGAgent(25, 3, 3, DDPGConfig(), generator=torch.Generator().manual_seed(0))
     data = torch.Generator().manual_seed(1)
@@ -544,7 +544,7 @@ def test_rollout_policy_acts_as_act_with_exploration_call_for_call():
 def test_exploring_one_row_is_eq_22_with_the_same_draws(random_eps):
     """act(explore=True) on one row (the per-episode loop's branch) gives what eq. 22 gives, draw for draw,
     including where the coin equals random_eps rounded to float32 (0.7 rounds down)."""
-    from gchgg.ddpg.agent import DDPGAgent, DDPGConfig
+    from gchgg.ddpg import DDPGAgent, DDPGConfig
 
     agent = DDPGAgent(25, 3, 4, DDPGConfig(hidden=(32, 32)), generator=torch.Generator().manual_seed(0))
     agent.random_eps = random_eps  # a setting changed after construction is followed
@@ -564,12 +564,13 @@ def test_exploring_one_row_is_eq_22_with_the_same_draws(random_eps):
     # the coin at the boundary: a coin equal to float32(0.7) is not below it
     agent.random_eps = 0.7
     agent._explore_one_row(torch.zeros(1, 4), torch.Generator().manual_seed(0))  # rounds random_eps
-    assert agent._random_eps32 == (0.7, float(torch.tensor(0.7, dtype=torch.float32))) and agent._random_eps32[1] < 0.7
+    eps32 = agent._explore_one_row.random_eps32
+    assert eps32 == (0.7, float(torch.tensor(0.7, dtype=torch.float32))) and eps32[1] < 0.7
 
 
 def test_small_batch_actor_with_unlike_normalisers_keeps_their_own_standardisation():
     """Normalisers that clip differently are not joined; still the module's actions."""
-    from gchgg.ddpg.agent import DDPGAgent, DDPGConfig
+    from gchgg.ddpg import DDPGAgent, DDPGConfig
 
     agent = DDPGAgent(25, 3, 3, DDPGConfig(hidden=(32, 32)), generator=torch.Generator().manual_seed(0))
     g = torch.Generator().manual_seed(1)

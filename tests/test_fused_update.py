@@ -11,7 +11,8 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from gchgg.ddpg.agent import DDPGAgent, HindsightDDPGLoss, make_ddpg_networks
+from gchgg.ddpg import DDPGAgent, HindsightDDPGLoss, make_ddpg_networks
+from gchgg.ddpg.agent import hand_differentiated
 from gchgg.fast import fused_update
 from gchgg.fast.fused_update import FusedDDPGUpdate, unsupported
 from gchgg.fast.linear import bf16_available, onednn_available, products_in, use_onednn
@@ -95,6 +96,27 @@ def test_fused_losses_and_gradients_are_autograds_bit_for_bit(hidden, size, sett
     assert all(p.grad is None for p in list(loss.target_actor.parameters()) + list(loss.target_critic.parameters()))
 
 
+def test_the_fused_update_computes_the_losses_by_the_loss_modules_own_formulas():
+    """The loss is the one source of the math: the fused update calls its formulas (here changed ones), it does
+    not restate them."""
+
+    class Changed(HindsightDDPGLoss):
+        @staticmethod
+        def critic_objective(pred_value, target_value):
+            return (pred_value - target_value).abs().mean()
+
+        @staticmethod
+        def actor_objective(policy_value, policy_action, action_l2):
+            return -policy_value.max() + action_l2 * policy_action.abs().mean()
+
+    loss = Changed(*make_ddpg_networks(OBS, GOAL, ACT, (16,), generator=torch.Generator().manual_seed(0)), gamma=0.9)
+    values = tensors(8, seed=1)
+    out = FusedDDPGUpdate(loss).forward(*values)
+    for name, a, b in zip(("loss_actor", "loss_value", "pred_value", "target_value"), loss.losses(*values), out,
+                          strict=True):  # fmt: skip
+        assert torch.equal(a.detach(), b), name
+
+
 def test_agent_with_fused_updates_trains_exactly_as_with_autograd():
     agents = {update: DDPGAgent(OBS, GOAL, ACT, hidden=(32, 32), generator=torch.Generator().manual_seed(0),
                                 matmul="default", gradients=update)
@@ -171,9 +193,9 @@ def test_auto_takes_the_fused_update_wherever_it_applies():
         DDPGAgent(OBS, GOAL, ACT, hidden=(16,), gradients="manual")
     agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd")
     agent.critic.mlp[1] = nn.Tanh()  # a network the fused update does not compute: auto falls back, fused refuses
-    assert agent._fused_update("auto") is None
+    assert hand_differentiated(agent.loss_module, "auto", agent.precision) is None
     with pytest.raises(ValueError, match="gradients='fused' differentiates ReLU MLPs.*layer 1 is Tanh"):
-        agent._fused_update("fused")
+        hand_differentiated(agent.loss_module, "fused", agent.precision)
 
 
 def test_unsupported_networks_are_named():
@@ -289,7 +311,7 @@ def test_a_compiled_update_that_cannot_be_built_says_so(monkeypatch):
     agent = DDPGAgent(OBS, GOAL, ACT, hidden=(16,), matmul="default", gradients="autograd")
     agent.critic.mlp[1] = nn.Tanh()
     with pytest.raises(ValueError, match="gradients='compiled' differentiates ReLU MLPs.*layer 1 is Tanh"):
-        agent._fused_update("compiled")
+        hand_differentiated(agent.loss_module, "compiled", agent.precision)
     fallback = FusedDDPGUpdate(use_onednn(loss_module((64, 64)), "onednn"), compiled=True, fall_back=True)
     with pytest.warns(RuntimeWarning, match=r"compiled DDPG update cannot be built here.*no C\+\+ compiler found.*"
                                             r"run eagerly"):  # fmt: skip

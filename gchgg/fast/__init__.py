@@ -4,6 +4,7 @@
 - :mod:`~gchgg.fast.fused_update`: the DDPG update differentiated by hand, eager or compiled (``gradients``);
 - :mod:`~gchgg.fast.subnormal`: the update's subnormal floats flushed to zero (``subnormals``);
 - :mod:`~gchgg.fast.adam_step`: Adam's fused step without ``torch.optim``'s bookkeeping;
+- :mod:`~gchgg.fast.small_batch`: the actor's forward and eq. 22 on the rollout's one-row steps, without modules;
 - :mod:`~gchgg.fast.nearest`: F_div's nearest-neighbour search through a Euclidean shortlist;
 - :mod:`~gchgg.fast.storage`: a replay storage that reads a sampled batch field by field.
 

@@ -1,19 +1,23 @@
-"""The DDPG update of :class:`gchgg.ddpg.HindsightDDPGLoss` differentiated by hand: the speed device beside the loss.
+"""The derivative of :class:`gchgg.ddpg.loss.HindsightDDPGLoss` written out by hand, held equal to autograd's.
 
-:class:`HindsightDDPGLoss` states the losses (the paper's and the original code's critic and actor
-losses) and autograd differentiates them. Part of that update is spent outside the products:
-building and walking the autograd graph, ``nn.Module`` calls, normalising the same batch three
-times, and in bfloat16 converting every activation to and from float32. :class:`FusedDDPGUpdate`
-computes the same losses and gradients with the products written out:
+The loss (:mod:`gchgg.ddpg.loss`) states the update's math, and autograd differentiates it. Part of that
+update is spent outside the products: building and walking the autograd graph, ``nn.Module`` calls,
+normalising the same batch three times, and in bfloat16 converting every activation to and from float32.
+:class:`FusedDDPGUpdate` computes the same losses and gradients with the products written out:
 
-- the observation and goal are normalised once for the actor and both critic terms;
+- the observation and goal are normalised once, by the loss's normalisers, for the actor and both critic
+  terms; the losses are the loss's own formulas (:meth:`~gchgg.ddpg.loss.HindsightDDPGLoss.critic_target`,
+  ``critic_objective``, ``actor_objective``), called on the products' outputs, not restated here;
 - the critic loss's backward writes the critic's weight gradients; the actor loss's backward
   through the critic computes input gradients only and keeps the action's (the critic's weights
-  get no gradient from it, as :meth:`HindsightDDPGLoss.actor_loss` says);
+  get no gradient from it, as :meth:`~gchgg.ddpg.loss.HindsightDDPGLoss.actor_loss` says);
 - each weight gradient is one ``torch.mm``, set as the parameter's ``.grad`` (replaced, not
   accumulated); the ReLU and tanh backwards are autograd's own kernels (``threshold_backward``,
   ``tanh_backward``).
 
+What it reads of the loss is declared in :class:`DDPGLoss`, so this module imports nothing of the
+algorithm: the loss is the one source of the math, this update its derivative, a speed device that
+``tests/test_fused_update.py`` holds equal to autograd's derivative of it.
 The arithmetic is one function of tensors (:func:`_losses_and_gradients`); ``compiled=True`` runs it
 under ``torch.compile`` (the ``gradients=compiled`` setting), equal to the eager update to float32
 rounding (:class:`FusedDDPGUpdate`).
@@ -23,7 +27,7 @@ autograd's bit for bit (``tests/test_fused_update.py``, batch sizes 5 to 256; th
 ``tests/test_same_numbers.py`` do not move). ``python benchmarks/agent_update.py`` times it against
 the autograd update and the bare plain-torch one (``fused / autograd agent``, ``fused / bare``).
 
-It applies to the networks :func:`gchgg.ddpg.agent.make_ddpg_networks` builds: ReLU MLPs of float32
+It applies to the networks :func:`gchgg.ddpg.networks.make_ddpg_networks` builds: ReLU MLPs of float32
 ``nn.Linear`` layers with biases (:func:`unsupported` says why other networks are not), on torch's
 BLAS or converted to oneDNN (:mod:`gchgg.fast.linear`). A :class:`~gchgg.fast.linear.OneDNNLinear` layer's
 products are computed as it computes them, by oneDNN in the products' precision (float32, or
@@ -41,17 +45,51 @@ import os
 import shutil
 import warnings
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import torch
 from torch import nn
 
 from gchgg.fast.linear import MIN_BATCH, OneDNNLinear, onednn_linear, onednn_mm
 
-if TYPE_CHECKING:  # the loss module is only read: its networks, normalisers and constants
-    from gchgg.ddpg.agent import HindsightDDPGLoss
+__all__ = ["DDPGLoss", "FusedDDPGUpdate", "compiler_found", "unsupported"]
 
-__all__ = ["FusedDDPGUpdate", "compiler_found", "unsupported"]
+
+class DDPGLoss(Protocol):
+    """What :class:`FusedDDPGUpdate` reads of the loss it differentiates (:class:`gchgg.ddpg.loss.HindsightDDPGLoss`),
+    at every call, so it follows changed constants, moved target networks and a loaded state.
+
+    - ``actor``, ``critic``, ``target_actor``, ``target_critic``: each with an ``mlp`` of ``Linear, ReLU, …,
+      Linear`` layers; the actors compute ``tanh(mlp(x))`` and the critics ``mlp([x, a])`` of the normalised
+      input ``x = [observation_normalizer(s), goal_normalizer(g)]``, the online actor's and critic's two
+      normalisers shared (:func:`unsupported` checks the layers and the sharing, the test the rest);
+    - the constants ``gamma``, ``clip_return`` and ``action_l2``;
+    - the three formulas of the losses on tensors, pure functions of their arguments, which the update calls
+      instead of restating them (the same functions for every loss: a compiled update is reused).
+    """
+
+    actor: nn.Module
+    critic: nn.Module
+    target_actor: nn.Module
+    target_critic: nn.Module
+    gamma: float
+    clip_return: bool
+    action_l2: float
+
+    def critic_target(self, reward: torch.Tensor, next_value: torch.Tensor, gamma: float,
+                      clip_return: bool) -> torch.Tensor:
+        """``y = r + γ·clip(Q', −1/(1−γ), 0)`` (the clip with ``clip_return``)."""
+
+    def critic_objective(self, pred_value: torch.Tensor, target_value: torch.Tensor) -> torch.Tensor:
+        """``mean((Q − y)²)``."""
+
+    def actor_objective(self, policy_value: torch.Tensor, policy_action: torch.Tensor,
+                        action_l2: float) -> torch.Tensor:
+        """``−mean Q(s‖g, π) + action_l2·mean(π²)``."""
+
+
+Formulas = tuple[Callable[..., torch.Tensor], Callable[..., torch.Tensor], Callable[..., torch.Tensor]]
+"""A loss's ``(critic_target, critic_objective, actor_objective)`` (:class:`DDPGLoss`)."""
 
 
 def _relu_mlp_layers(mlp: nn.Module) -> list[nn.Linear] | str:
@@ -69,7 +107,7 @@ def _relu_mlp_layers(mlp: nn.Module) -> list[nn.Linear] | str:
     return modules[::2]
 
 
-def unsupported(loss: HindsightDDPGLoss) -> str | None:
+def unsupported(loss: DDPGLoss) -> str | None:
     """Why :class:`FusedDDPGUpdate` cannot compute ``loss``'s update, or ``None`` where it can."""
     for name in ("actor", "critic", "target_actor", "target_critic"):
         layers = _relu_mlp_layers(getattr(loss, name).mlp)
@@ -151,23 +189,24 @@ class _Products:
 
 def _losses_and_gradients(
     products: dict[str, _Products],
+    formulas: Formulas,
     x: torch.Tensor,
     next_x: torch.Tensor,
     action: torch.Tensor,
     reward: torch.Tensor,
     gamma: float,
-    return_range: tuple[float, float] | None,
+    clip_return: bool,
     action_l2: float,
 ) -> tuple[torch.Tensor, ...]:
-    """The update's arithmetic: :meth:`HindsightDDPGLoss.losses`' values and the online networks' gradients
-    from the normalised inputs ``x = s‖g`` and ``next_x = s'‖g``: ``(loss_actor, loss_value, pred_value [B, 1],
-    target_value [B, 1], the critic's gradients, the actor's gradients)``, the gradients in each network's
-    parameter order. The same function runs eagerly and under ``torch.compile`` (:class:`FusedDDPGUpdate`)."""
+    """The update's arithmetic: the loss's values (:meth:`~gchgg.ddpg.loss.HindsightDDPGLoss.losses`, by its
+    ``formulas``) and the online networks' gradients from the normalised inputs ``x = s‖g`` and
+    ``next_x = s'‖g``: ``(loss_actor, loss_value, pred_value [B, 1], target_value [B, 1], the critic's
+    gradients, the actor's gradients)``, the gradients in each network's parameter order. The same function
+    runs eagerly and under ``torch.compile`` (:class:`FusedDDPGUpdate`)."""
+    critic_target, critic_objective, actor_objective = formulas
     next_action = products["target_actor"].forward(next_x)[-1].tanh_()
     next_value = products["target_critic"].forward(torch.cat([next_x, next_action], -1))[-1]
-    if return_range is not None:
-        next_value = next_value.clamp_(*return_range)
-    target_value = reward + gamma * next_value
+    target_value = critic_target(reward, next_value, gamma, clip_return)
 
     actor, critic = products["actor"], products["critic"]
     actor_outputs = actor.forward(x)
@@ -175,13 +214,11 @@ def _losses_and_gradients(
     value_outputs = critic.forward(torch.cat([x, action], -1))  # Q(s‖g, a)
     policy_outputs = critic.forward(torch.cat([x, policy_action], -1))  # Q(s‖g, π(s‖g))
     pred_value, policy_value = value_outputs[-1], policy_outputs[-1]
-    error = pred_value - target_value
-    loss_value = error.square().mean()
-    loss_actor = -policy_value.mean()
-    if action_l2:
-        loss_actor = loss_actor + action_l2 * policy_action.square().mean()
+    loss_value = critic_objective(pred_value, target_value)
+    loss_actor = actor_objective(policy_value, policy_action, action_l2)
 
     # the critic loss: ∂ mean((Q − y)²) / ∂Q into the critic's weights
+    error = pred_value - target_value
     critic_grads = critic.backward_weights(value_outputs, error * (2.0 / error.numel()))
     # the actor loss: ∂(−mean Q(s‖g, π)) / ∂Q back to the action only (the critic's weights are constants)
     grad_q = torch.full_like(policy_value, -1.0 / policy_value.numel())
@@ -203,8 +240,8 @@ def _compiled_arithmetic(
     *inputs,
 ) -> tuple[torch.Tensor, ...]:
     """:func:`_losses_and_gradients` from the float32 weights, each oneDNN layer's rounded to ``dtype`` first:
-    what :class:`FusedDDPGUpdate` hands to ``torch.compile`` (tensors and constants only, so a new agent of
-    the same sizes reuses the compiled code)."""
+    what :class:`FusedDDPGUpdate` hands to ``torch.compile`` (tensors, constants and the loss class's formulas
+    only, so a new agent of the same sizes reuses the compiled code)."""
     products = {name: _Products([w.to(dtype) if on else w for w, on in zip(weights[name], onednn[name], strict=True)],
                                 biases[name], onednn[name])
                 for name in weights}  # fmt: skip
@@ -226,8 +263,8 @@ def _compiled() -> Callable:
 class FusedDDPGUpdate:
     """The losses of ``loss`` and the gradients of its online actor and critic, without autograd.
 
-    Call :meth:`forward` with a batch's tensors (what :meth:`HindsightDDPGLoss.losses` takes); it returns
-    what that returns, as tensors without a graph. Then :meth:`backward` sets every parameter's
+    Call :meth:`forward` with a batch's tensors (what :meth:`gchgg.ddpg.loss.HindsightDDPGLoss.losses` takes);
+    it returns what that returns, as tensors without a graph. Then :meth:`backward` sets every parameter's
     ``.grad`` of the online actor and critic (replacing it), as ``(loss_actor + loss_value).backward()``
     after zeroed gradients would; the optimisers step as usual. Target networks, normalisers and
     constants are read from ``loss`` at every call, so it follows their updates and a loaded state.
@@ -259,7 +296,7 @@ class FusedDDPGUpdate:
     """
 
     def __init__(
-        self, loss: HindsightDDPGLoss, precision: str = "float32", compiled: bool = False, fall_back: bool = False
+        self, loss: DDPGLoss, precision: str = "float32", compiled: bool = False, fall_back: bool = False
     ) -> None:
         reason = unsupported(loss)
         if reason is not None:
@@ -316,7 +353,7 @@ class FusedDDPGUpdate:
         reward: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """``(loss_actor, loss_value, pred_value [B, 1], target_value [B, 1])``, the values of
-        :meth:`HindsightDDPGLoss.losses`; keeps the gradients for :meth:`backward`."""
+        :meth:`gchgg.ddpg.loss.HindsightDDPGLoss.losses`; keeps the gradients for :meth:`backward`."""
         loss, actor = self.loss, self.loss.actor
         if reward.shape != (observation.shape[0], 1):
             raise ValueError(f"the reward must be [B, 1] like the critic's output ({observation.shape[0]}, 1), "
@@ -324,8 +361,8 @@ class FusedDDPGUpdate:
         normalize = lambda o, g: torch.cat([actor.observation_normalizer(o), actor.goal_normalizer(g)], -1)  # noqa: E731
         x, next_x = normalize(observation, goal), normalize(next_observation, goal)
         onednn = {name: self._onednn(name, observation.shape[0]) for name in self._layers}
-        return_range = loss.return_range if loss.clip_return else None
-        inputs = (x, next_x, action, reward, loss.gamma, return_range, loss.action_l2)
+        formulas = (loss.critic_target, loss.critic_objective, loss.actor_objective)
+        inputs = (formulas, x, next_x, action, reward, loss.gamma, loss.clip_return, loss.action_l2)
         out = None
         if self.compiled and any(any(on) for on in onednn.values()):
             weights = {name: [layer.weight for layer in layers] for name, layers in self._layers.items()}
