@@ -1,24 +1,22 @@
 """Builders of the training pipeline's parts from explicit arguments (no Hydra config is passed in).
 
 Each ``make_*`` function turns a few plain settings into one part — the goal metric, the trade-off
-schedule, the replay buffer with its sampler, the HER transform, the goal generator. The settings'
-defaults and checks are declared where the settings are: in :mod:`gchgg.run.config` for the pipeline,
-and in the parts themselves for their arguments; a builder takes every setting explicitly and checks
-only the choices it makes between parts.
+schedule, the replay buffer with its sampler, the HER transform, the goal generator. A builder takes
+every setting explicitly and checks none: a run's settings are checked once, before anything is built,
+by :func:`gchgg.run.config.check` (whose choice lists name the ``kind`` each builder takes), and each
+part checks its own arguments when it is built. A ``kind`` that is not one raises a ``KeyError``.
 """
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
 
 import torch
 from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs.transforms import Compose
 
-from gchgg.common.validation import check_choice
 from gchgg.fast.storage import FieldStorage
-from gchgg.graph import USER_CACHE_DIR, EuclideanMetric, GoalGraph, check_density_criterion
+from gchgg.graph import USER_CACHE_DIR, EuclideanMetric, GoalGraph
 from gchgg.hgg import HGGGoalGenerator, TrajectoryPool
 from gchgg.samplers import (
     AdaptiveTradeoff,
@@ -28,18 +26,14 @@ from gchgg.samplers import (
     FixedTradeoff,
     GraphCurriculumSampler,
 )
-from gchgg.samplers.curriculum import SCALES
 from gchgg.transforms import DEFAULT_DROP_KEYS, EpisodeEnergy, GoalToNext, HindsightRelabel, ObservationNoise
 
-METRICS = ("euclidean", "graph")
-SAMPLERS = ("uniform", "ebp", "curriculum", "cher")
-TRADEOFFS = ("adaptive", "exponential", "fixed")
-GOAL_GENERATORS = ("none", "hgg")
-PROXIMITIES = {  # curriculum.proximity -> (stored goal measured from, stored goal measured to)
+PROXIMITY_KEYS = {  # curriculum.proximity -> (stored goal measured from, stored goal measured to)
     "goal_to_target": ("desired_goal", "task_goal"),  # eq. 15: hindsight goal to the target-task goal T*
     "achieved_to_goal": ("achieved_goal", "desired_goal"),  # the authors' code: closeness to success
 }
-DIVERSITY_OF = {"goal": "desired_goal", "achieved": "achieved_goal"}  # curriculum.diversity_of -> stored key
+DIVERSITY_KEYS = {"goal": "desired_goal", "achieved": "achieved_goal"}  # curriculum.diversity_of -> stored key
+TRADEOFFS = {"adaptive": AdaptiveTradeoff, "exponential": ExponentialTradeoff, "fixed": FixedTradeoff}
 
 
 def make_metric(kind: str, field=None, obstacles=(), **graph):
@@ -51,70 +45,49 @@ def make_metric(kind: str, field=None, obstacles=(), **graph):
         kind: ``"euclidean"`` or ``"graph"``.
         field, obstacles: boxes ``(centre, half-sizes)`` in metres (only for ``"graph"``).
     """
-    check_choice("metric", kind, METRICS)
-    if kind == "euclidean":
-        if graph:
-            raise ValueError(f"a Euclidean metric takes no graph settings, got {', '.join(graph)}")
-        return EuclideanMetric()
-    missing = {"n", "margin", "snap", "cache_dir"} - set(graph)
-    if missing:
-        raise ValueError(f"a graph metric needs the graph's settings; {', '.join(sorted(missing))} missing")
-    check_density_criterion(field, obstacles, graph["n"], graph["margin"])  # eq. 12, before the (long) build
-    cache_dir = USER_CACHE_DIR if graph["cache_dir"] is None else graph["cache_dir"]
-    return GoalGraph(field, obstacles, graph["n"], graph["margin"], snap=graph["snap"], cache_dir=cache_dir)
+    if kind == "graph":  # the graph checks its settings and the density criterion (eq. 12) before its long build
+        cache_dir = USER_CACHE_DIR if graph["cache_dir"] is None else graph["cache_dir"]
+        return GoalGraph(field, obstacles, graph["n"], graph["margin"], snap=graph["snap"], cache_dir=cache_dir)
+    if graph:
+        raise ValueError(f"a Euclidean metric takes no graph settings, got {', '.join(graph)}")
+    return {"euclidean": EuclideanMetric}[kind]()
 
 
 def make_tradeoff(kind: str, **settings):
     """The λ schedule ``kind`` with its settings: adaptive (eq. 20: ``eta``, ``sigma``, ``update_every``),
     exponential (eq. 4: ``lambda_0``, ``tau``) or fixed (``value``)."""
-    check_choice("tradeoff", kind, TRADEOFFS)
-    schedule = {"adaptive": AdaptiveTradeoff, "exponential": ExponentialTradeoff, "fixed": FixedTradeoff}[kind]
-    if "update_every" in settings and kind != "adaptive":
-        raise ValueError(f"tradeoff.update_every={settings['update_every']!r} needs tradeoff=adaptive, "
-                         f"got tradeoff={kind!r}")
-    try:
-        return schedule(**settings)
-    except TypeError:
-        raise ValueError(f"tradeoff={kind} takes {', '.join(inspect.signature(schedule).parameters)}, "
-                         f"got {', '.join(settings)}") from None
+    return TRADEOFFS[kind](**settings)
 
 
 def make_sampler(kind: str, metric, tradeoff, **settings):
     """The replay sampler ``kind`` with its own settings: uniform, EBP, graph curriculum (Alg. 1, candidates
     drawn with EBP) or CHER (``pool_size``).
 
-    For the curriculum: ``num_candidates`` (K), ``proximity`` (a key of :data:`PROXIMITIES`) says which
+    For the curriculum: ``num_candidates`` (K), ``proximity`` (a key of :data:`PROXIMITY_KEYS`) says which
     two stored goals F_prox measures, ``diversity_of`` (``"goal"`` or ``"achieved"``) whose nearest
     neighbours F_div scores, with ``diversity_metric`` (``None``: ``metric``), and ``scale`` (``"raw"``
     or ``"standardized"``) how the two terms are weighed (see :class:`~gchgg.samplers.GraphCurriculumSampler`).
     """
-    check_choice("sampler", kind, SAMPLERS)
     if kind in ("uniform", "ebp") and settings:
         raise ValueError(f"algo.sampler={kind} takes no settings, got {', '.join(settings)}")
-    if kind == "uniform":
-        return None  # TorchRL's RandomSampler
-    if kind == "ebp":
-        return EnergySampler("energy")
     if kind == "curriculum":
-        proximity, diversity_of = settings["proximity"], settings["diversity_of"]
-        check_choice("curriculum.proximity", proximity, tuple(PROXIMITIES))
-        check_choice("curriculum.diversity_of", diversity_of, tuple(DIVERSITY_OF))
-        check_choice("curriculum.scale", settings["scale"], SCALES)
-        goal_key, target_key = PROXIMITIES[proximity]
+        goal_key, target_key = PROXIMITY_KEYS[settings["proximity"]]
         return GraphCurriculumSampler(
             metric,
             settings["num_candidates"],
             tradeoff,
             goal_key=goal_key,
             target_key=target_key,
-            diversity_key=DIVERSITY_OF[diversity_of],
+            diversity_key=DIVERSITY_KEYS[settings["diversity_of"]],
             diversity_metric=settings["diversity_metric"],
             scale=settings["scale"],
             energy_key="energy",
             on_write="redraw",  # every batch from the buffer as it is when sampled (the recorded runs)
             diagnostics=True,  # metrics.csv's diversity_spread, proximity_spread and diversity_decided
         )
-    return CherSampler(metric, pool_size=settings["pool_size"], tradeoff=tradeoff)
+    if kind == "cher":
+        return CherSampler(metric, pool_size=settings["pool_size"], tradeoff=tradeoff)
+    return {"uniform": lambda: None, "ebp": lambda: EnergySampler("energy")}[kind]()  # None: TorchRL's RandomSampler
 
 
 def make_replay_buffer(
@@ -186,10 +159,9 @@ def make_goal_generator(
 ) -> HGGGoalGenerator | None:
     """``None`` (episodes go to the target goals) or an HGG goal generator with its trajectory pool (its
     results say when its stop condition switches the run to target goals: ``stopped_now``)."""
-    check_choice("goal_generator", kind, GOAL_GENERATORS)
     if kind == "none":
         return None
-    return HGGGoalGenerator(
+    return {"hgg": HGGGoalGenerator}[kind](
         metric,
         max_dis=max_dis,
         pool=TrajectoryPool(pool_size),

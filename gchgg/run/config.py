@@ -10,22 +10,30 @@ choice per group:
   :class:`ExponentialTradeoffConfig` and :class:`FixedTradeoffConfig`, registered as the groups'
   options.
 
-A setting that a reusable part takes as an argument gets its default from the part's signature
-(:func:`default_of`). Each default is therefore written once: in the part (the HER ``k``, the
-curriculum's K, eq. 20's η and σ, the graph's lattice), or here for the pipeline's own settings
-(iterations, episodes, evaluation). An algorithm's config holds only what it reads. The ``algo``
-files of the methods without a curriculum, a λ, CHER's pool or a graph metric set ``curriculum``,
-``tradeoff``, ``cher`` and ``graph`` to ``null``.
+An algorithm's config holds only what it reads. The ``algo`` files of the methods without a
+curriculum, a λ, CHER's pool or a graph metric set ``curriculum``, ``tradeoff``, ``cher`` and
+``graph`` to ``null``.
 
-:func:`check` validates a composed config. Each section's ``check`` method checks its own settings
-and names them ``<section>.<setting>`` (the ``agent`` section: :class:`~gchgg.ddpg.agent.DDPGConfig`'s own
-checks, prefixed); :func:`check` adds the settings that depend on each other. The parts check their
-own arguments again when they are built: that is their contract as a library.
+Settings flow one way: this module imports nothing from the library (only the check helpers of
+:mod:`gchgg.common.validation` and the trackers' own check, :func:`gchgg.run.loggers.check_backends`,
+which import nothing of the project). Every default and every choice list is written here as a
+literal, and :func:`gchgg.run.parts.make_parts` hands each value of the checked :class:`RunConfig` to
+the parts explicitly. Reading the defaults from the parts' signatures instead put the schema above
+nine library modules, so that a reader of the settings met the whole algorithm first; a reusable part
+keeps its own defaults and checks for those who build it by hand. Where a part has a default, a
+choice list or a rule for the same setting (the HER ``k``, the curriculum's K, eq. 20's η and σ,
+DDPG's hyperparameters, the graph's lattice), ``tests/test_config.py`` holds the two equal, so they
+cannot drift.
+
+:func:`check` validates a composed config before anything is built: every setting once, by the rule
+of the part that takes it, in the section's ``check`` method, which names it ``<section>.<setting>``;
+then the settings that depend on each other. The builders and :func:`~gchgg.run.parts.make_parts`
+check no setting again; the parts check their own arguments when they are built, their contract as a
+library.
 """
 
 from __future__ import annotations
 
-import inspect
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,36 +41,29 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from gchgg.common.validation import check_choice, check_number
-from gchgg.ddpg.agent import GRADIENTS, DDPGConfig
-from gchgg.fast.linear import MATMUL_BACKENDS, PRECISIONS
-from gchgg.fast.subnormal import SUBNORMALS
-from gchgg.graph import GoalGraph
-from gchgg.hgg import HGGGoalGenerator, TrajectoryPool
 from gchgg.run import loggers
-from gchgg.run.builders import GOAL_GENERATORS, METRICS, SAMPLERS
-from gchgg.samplers import AdaptiveTradeoff, CherSampler, ExponentialTradeoff, FixedTradeoff, GraphCurriculumSampler
-from gchgg.transforms import HindsightRelabel
 
 __all__ = [
     "AdaptiveTradeoffConfig", "AgentConfig", "AlgoConfig", "BufferConfig", "CheckpointConfig", "CherConfig",
     "CurriculumConfig", "EnvConfig", "EvalConfig", "ExponentialTradeoffConfig", "FixedTradeoffConfig", "GraphConfig",
-    "HERConfig", "HGGConfig", "LoggingConfig", "NoiseConfig", "RunConfig", "TrainConfig", "check", "default_of",
-    "register",
+    "HERConfig", "HGGConfig", "LoggingConfig", "NoiseConfig", "RunConfig", "TrainConfig", "check", "register",
 ]  # fmt: skip
 
-NORMALIZER_SOURCES = ("sampled", "collected")
-
-
-def default_of(part: Any, argument: str) -> Any:
-    """The default of ``argument`` in the signature of ``part`` (a class: its ``__init__``), where it is declared.
-
-    >>> default_of(GraphCurriculumSampler, "num_candidates")
-    8
-    """
-    default = inspect.signature(part).parameters[argument].default
-    if default is inspect.Parameter.empty:
-        raise TypeError(f"{part.__name__}({argument}) has no default to take")
-    return list(default) if isinstance(default, tuple) else default
+# The choices of each setting that picks one (the parts' own lists where a part takes the setting).
+GOAL_GENERATORS = ("none", "hgg")  # algo.goal_generator
+METRICS = ("euclidean", "graph")  # algo.metric, curriculum.diversity_metric
+SAMPLERS = ("uniform", "ebp", "curriculum", "cher")  # algo.sampler
+UPDATE_EVERY = ("iteration", "episode")  # tradeoff.update_every (AdaptiveTradeoff.UPDATE_EVERY)
+SNAPS = ("nearest", "floor")  # graph.snap (GoalGraph's snap)
+PROXIMITIES = ("goal_to_target", "achieved_to_goal")  # curriculum.proximity (gchgg.run.builders.PROXIMITY_KEYS)
+DIVERSITY_OF = ("goal", "achieved")  # curriculum.diversity_of (gchgg.run.builders.DIVERSITY_KEYS)
+SCALES = ("raw", "standardized")  # curriculum.scale (gchgg.samplers.curriculum.SCALES)
+HER_STRATEGIES = ("future", "final", "episode")  # her.strategy (gchgg.transforms.HerStrategy)
+NORMALIZER_SOURCES = ("sampled", "collected")  # agent.normalizer_source
+MATMUL_BACKENDS = ("auto", "onednn", "default")  # matmul (gchgg.fast.linear.MATMUL_BACKENDS)
+PRECISIONS = ("auto", "float32", "bfloat16")  # precision (gchgg.fast.linear.PRECISIONS)
+GRADIENTS = ("auto", "fused", "compiled", "autograd")  # gradients (the agent's GRADIENTS)
+SUBNORMALS = ("flush", "keep")  # subnormals (gchgg.fast.subnormal.SUBNORMALS)
 
 
 def _positive(section: str, config: Any, names: tuple[str, ...], *, allow_zero: bool = False) -> None:
@@ -107,10 +108,18 @@ class GraphConfig:
     """The obstacle-aware goal graph (``graph=default``), for a graph metric (``algo.metric`` or
     ``curriculum.diversity_metric``)."""
 
-    n: list[int] = field(default_factory=lambda: default_of(GoalGraph, "n"))  # lattice vertices (eqs. 9-10, 12)
-    margin: float = default_of(GoalGraph, "margin")  # safety margin added to every obstacle half-size (m)
-    snap: str = default_of(GoalGraph, "snap")  # goal -> vertex (eq. 14): nearest | floor
+    n: list[int] = field(default_factory=lambda: [31, 31, 11])  # lattice vertices per axis (eqs. 9-10, 12)
+    margin: float = 0.02  # safety margin added to every obstacle half-size (m)
+    snap: str = "nearest"  # goal -> vertex (eq. 14): nearest | floor
     cache_dir: str | None = None  # the distance tables' cache; null: $GCHGG_CACHE_DIR or ~/.cache/gchgg
+
+    def check(self) -> None:
+        """The graph's own settings; the density criterion (eq. 12) needs the task's obstacles and is the graph's."""
+        if len(self.n) != 3 or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in self.n):
+            raise ValueError(f"graph.n must be three integers (n_x, n_y, n_z), each >= 2 (vertices per axis), "
+                             f"got {self.n!r}")
+        check_number("graph.margin", self.margin, low=0)
+        check_choice("graph.snap", self.snap, SNAPS)
 
 
 @dataclass
@@ -118,9 +127,14 @@ class AdaptiveTradeoffConfig:
     """λ from eq. 20 (``tradeoff=adaptive``, GC-HGG's)."""
 
     name: str = "adaptive"
-    eta: float = default_of(AdaptiveTradeoff, "eta")  # scale η of eq. 20
-    sigma: float = default_of(AdaptiveTradeoff, "sigma")  # width σ of eq. 20 (m)
-    update_every: str = default_of(AdaptiveTradeoff, "update_every")  # iteration (the paper) | episode (the code)
+    eta: float = 1000.0  # scale η of eq. 20
+    sigma: float = 0.3  # width σ of eq. 20 (m)
+    update_every: str = "iteration"  # iteration (the paper) | episode (the code)
+
+    def check(self) -> None:
+        check_number("tradeoff.eta", self.eta, low=0)
+        check_number("tradeoff.sigma", self.sigma, low=0, low_open=True)
+        check_choice("tradeoff.update_every", self.update_every, UPDATE_EVERY)
 
 
 @dataclass
@@ -128,8 +142,12 @@ class ExponentialTradeoffConfig:
     """λ from eq. 4 (``tradeoff=exponential``, CHER's)."""
 
     name: str = "exponential"
-    lambda_0: float = default_of(ExponentialTradeoff, "lambda_0")  # λ at iteration 0
-    tau: float = default_of(ExponentialTradeoff, "tau")  # growth per iteration
+    lambda_0: float = 1.0  # λ at iteration 0
+    tau: float = 0.005  # growth per iteration
+
+    def check(self) -> None:
+        check_number("tradeoff.lambda_0", self.lambda_0, low=0)
+        check_number("tradeoff.tau", self.tau, low=-1, low_open=True)
 
 
 @dataclass
@@ -137,7 +155,14 @@ class FixedTradeoffConfig:
     """A constant λ (``tradeoff=fixed``)."""
 
     name: str = "fixed"
-    value: float = default_of(FixedTradeoff, "value")
+    value: float = 1.0
+
+    def check(self) -> None:
+        check_number("tradeoff.value", self.value, low=0)
+
+
+TRADEOFFS = {"adaptive": AdaptiveTradeoffConfig, "exponential": ExponentialTradeoffConfig,
+             "fixed": FixedTradeoffConfig}  # the tradeoff group's options (tradeoff.name) and their sections' schemas
 
 
 @dataclass
@@ -206,78 +231,87 @@ class BufferConfig:
 class HGGConfig:
     """HGG's goal generator (eqs. 5-7), for ``algo.goal_generator=hgg``."""
 
-    pool_size: int = default_of(TrajectoryPool, "capacity")  # trajectories kept in the pool (FIFO)
-    c: float = default_of(HGGGoalGenerator, "c")  # weight of the initial-state distance in eq. 6
-    L: float = default_of(HGGGoalGenerator, "L")  # Lipschitz constant of eqs. 5-7
+    pool_size: int = 1000  # trajectories kept in the pool (FIFO)
+    c: float = 3.0  # weight of the initial-state distance in eq. 6
+    L: float = 5.0  # Lipschitz constant of eqs. 5-7
 
     def check(self) -> None:
         _positive("hgg", self, ("pool_size",))
+        check_number("hgg.c", self.c, low=0)
+        check_number("hgg.L", self.L, low=0, low_open=True)
 
 
 @dataclass
 class CurriculumConfig:
     """The graph-curriculum sampler (Alg. 1), for ``algo.sampler=curriculum``."""
 
-    num_candidates: int = default_of(GraphCurriculumSampler, "num_candidates")  # K candidate batches per sample
+    num_candidates: int = 8  # K candidate batches per sample
     proximity: str = "goal_to_target"  # goal_to_target (eq. 15) | achieved_to_goal (the authors' code)
     diversity_of: str = "goal"  # goal (eq. 19) | achieved (the transitions' achieved goals: the code)
     diversity_metric: str = "${algo.metric}"  # graph | euclidean: metric of F_div's nearest neighbours
-    scale: str = default_of(GraphCurriculumSampler, "scale")  # raw | standardized (each term over its std)
+    scale: str = "raw"  # raw | standardized (each term over its std)
+
+    def check(self) -> None:
+        _positive("curriculum", self, ("num_candidates",))
+        check_choice("curriculum.proximity", self.proximity, PROXIMITIES)
+        check_choice("curriculum.diversity_of", self.diversity_of, DIVERSITY_OF)
+        check_choice("curriculum.diversity_metric", self.diversity_metric, METRICS)
+        check_choice("curriculum.scale", self.scale, SCALES)
 
 
 @dataclass
 class CherConfig:
     """CHER's greedy selection, for ``algo.sampler=cher``."""
 
-    pool_size: int = default_of(CherSampler, "pool_size")  # transitions each batch is picked from
+    pool_size: int = 5000  # transitions each batch is picked from
+
+    def check(self) -> None:
+        _positive("cher", self, ("pool_size",))
 
 
 @dataclass
 class HERConfig:
     """HER relabelling."""
 
-    k: int = default_of(HindsightRelabel, "k")  # relabelled copies per step (ratio k/(k+1))
-    strategy: str = default_of(HindsightRelabel, "strategy").value  # future | final | episode
+    k: int = 4  # relabelled copies per step (ratio k/(k+1))
+    strategy: str = "future"  # future | final | episode
 
     def check(self) -> None:
         _positive("her", self, ("k",), allow_zero=True)
-
-
-def _ddpg(name: str) -> Any:
-    """The default of :class:`~gchgg.ddpg.agent.DDPGConfig`'s field ``name``, where it is declared."""
-    return DDPGConfig.__dataclass_fields__[name].default
+        check_choice("her.strategy", self.strategy, HER_STRATEGIES)
 
 
 @dataclass
 class AgentConfig:
-    """DDPG's hyperparameters (:class:`gchgg.ddpg.agent.DDPGConfig`'s fields with its defaults: the original
-    code's) and where the normalisers' statistics come from."""
+    """DDPG's hyperparameters (those of :class:`gchgg.ddpg.DDPGConfig`, with its defaults: the original code's)
+    and where the normalisers' statistics come from."""
 
-    hidden: list[int] = field(default_factory=lambda: list(_ddpg("hidden")))  # hidden sizes of actor and critic
-    actor_lr: float = _ddpg("actor_lr")  # Adam learning rate of the actor
-    critic_lr: float = _ddpg("critic_lr")  # Adam learning rate of the critic
-    gamma: float = _ddpg("gamma")  # discount
-    polyak: float = _ddpg("polyak")  # target <- polyak * target + (1 - polyak) * online
-    target_update_every: int = _ddpg("target_update_every")  # updates between two soft target updates
-    action_l2: float = _ddpg("action_l2")  # weight of mean(pi^2) in the actor loss
-    clip_return: bool = _ddpg("clip_return")  # clip the bootstrapped Q' to [-1/(1-gamma), 0]
-    random_eps: float = _ddpg("random_eps")  # probability of a uniform random action while exploring
-    noise_std: float = _ddpg("noise_std")  # std of the Gaussian exploration noise (eq. 22)
-    norm_std_min: float = _ddpg("norm_std_min")  # std floor of the normalisers
-    norm_clip: float = _ddpg("norm_clip")  # normalised inputs are clipped to +-norm_clip
+    hidden: list[int] = field(default_factory=lambda: [256, 256, 256])  # hidden sizes of actor and critic
+    actor_lr: float = 1e-3  # Adam learning rate of the actor
+    critic_lr: float = 1e-3  # Adam learning rate of the critic
+    gamma: float = 0.98  # discount
+    polyak: float = 0.95  # target <- polyak * target + (1 - polyak) * online
+    target_update_every: int = 20  # updates between two soft target updates
+    action_l2: float = 1.0  # weight of mean(pi^2) in the actor loss
+    clip_return: bool = True  # clip the bootstrapped Q' to [-1/(1-gamma), 0]
+    random_eps: float = 0.3  # probability of a uniform random action while exploring
+    noise_std: float = 0.2  # std of the Gaussian exploration noise (eq. 22)
+    norm_std_min: float = 1e-2  # std floor of the normalisers
+    norm_clip: float = 5.0  # normalised inputs are clipped to +-norm_clip
     normalizer_source: str = "sampled"  # sampled: from a batch drawn after each chunk (the original) | collected
 
     def check(self) -> None:
-        self.ddpg()
+        if not self.hidden or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in self.hidden):
+            raise ValueError(f"agent.hidden must be a non-empty list of positive layer widths, got {self.hidden!r}")
+        for name in ("actor_lr", "critic_lr", "norm_std_min", "norm_clip"):
+            check_number(f"agent.{name}", getattr(self, name), low=0, low_open=True)
+        check_number("agent.gamma", self.gamma, low=0, high=1, low_open=True, high_open=True)
+        check_number("agent.polyak", self.polyak, low=0, high=1)
+        _positive("agent", self, ("target_update_every",))
+        check_number("agent.action_l2", self.action_l2, low=0)
+        check_number("agent.random_eps", self.random_eps, low=0, high=1)
+        check_number("agent.noise_std", self.noise_std, low=0)
         check_choice("agent.normalizer_source", self.normalizer_source, NORMALIZER_SOURCES)
-
-    def ddpg(self) -> DDPGConfig:
-        """The learner's own hyperparameters (all but ``normalizer_source``, which the loop reads), checked
-        by :class:`~gchgg.ddpg.agent.DDPGConfig` (a bad one names ``agent.<setting>``)."""
-        try:
-            return DDPGConfig(**{name: getattr(self, name) for name in DDPGConfig.__dataclass_fields__})
-        except ValueError as error:
-            raise ValueError(f"agent.{error}") from None
 
 
 @dataclass
@@ -332,11 +366,16 @@ class RunConfig:
     logging: LoggingConfig = field(default_factory=LoggingConfig)
 
     def check(self) -> None:
-        """Each section's settings (its ``check``), then the top-level ones."""
-        for section in (self.env, self.algo, self.train, self.eval, self.noise, self.buffer, self.hgg, self.her,
-                        self.agent, self.checkpoint, self.logging):  # fmt: skip
-            section.check()
-        _positive("run", self, ("threads",), allow_zero=True)
+        """Each section's settings (its ``check``; the optional sections where present), then the top-level ones."""
+        if self.tradeoff is not None and type(self.tradeoff) is not TRADEOFFS.get(getattr(self.tradeoff, "name", None)):
+            raise ValueError(f"the tradeoff section is one of the group's options, tradeoff={' | '.join(TRADEOFFS)}, "
+                             f"got {self.tradeoff!r}")
+        for section in (self.env, self.algo, self.graph, self.tradeoff, self.train, self.eval, self.noise, self.buffer,
+                        self.hgg, self.curriculum, self.cher, self.her, self.agent, self.checkpoint, self.logging):
+            if section is not None:
+                section.check()
+        check_number("seed", self.seed, integer=True, low=0)
+        check_number("threads (0: torch's own count)", self.threads, integer=True, low=0)
         check_choice("matmul", self.matmul, MATMUL_BACKENDS)
         check_choice("precision", self.precision, PRECISIONS)
         check_choice("gradients", self.gradients, GRADIENTS)
@@ -348,16 +387,16 @@ def register() -> None:
     store = ConfigStore.instance()
     store.store(name="base_config", node=RunConfig)
     store.store(group="graph", name="default", node=GraphConfig)
-    for name, node in (("adaptive", AdaptiveTradeoffConfig), ("exponential", ExponentialTradeoffConfig),
-                       ("fixed", FixedTradeoffConfig)):  # fmt: skip
+    for name, node in TRADEOFFS.items():
         store.store(group="tradeoff", name=name, node=node)
 
 
-def check(cfg: DictConfig) -> RunConfig:
-    """Check a composed config before anything is built: each section's settings (its ``check``),
-    then those that depend on each other. Returns it as a :class:`RunConfig`; a bad setting is a
-    ``ValueError`` naming it."""
-    run = OmegaConf.to_object(cfg)
+def check(cfg: DictConfig | RunConfig) -> RunConfig:
+    """Check a composed config (or a :class:`RunConfig` built by hand) before anything is built: each
+    section's settings (its ``check``), then those that depend on each other. Returns it as a resolved
+    :class:`RunConfig`, what :func:`~gchgg.run.parts.make_parts` reads; a bad setting is a ``ValueError``
+    naming it, its value and what is allowed."""
+    run = OmegaConf.to_object(OmegaConf.structured(cfg) if isinstance(cfg, RunConfig) else cfg)
     if not isinstance(run, RunConfig):
         raise TypeError(f"a training config is composed from conf/config.yaml (base_config), got {type(run).__name__}")
     run.check()

@@ -1,7 +1,8 @@
 """The parts of one training run, built from its config: envs, metric, sampler, buffer, relabelling, agent, goals.
 
-:func:`make_parts` checks the composed config (:func:`gchgg.run.config.check`) and reads it (and only it)
-into the explicit arguments of the builders in :mod:`gchgg.run.builders`; the :class:`~gchgg.train.Trainer`
+:func:`make_parts` checks the composed config (:func:`gchgg.run.config.check`) and reads the checked
+:class:`~gchgg.run.config.RunConfig` it returns (and only it) into the explicit arguments of the parts and
+of the builders in :mod:`gchgg.run.builders`; it checks no setting again. The :class:`~gchgg.train.Trainer`
 only runs the loop over what it returns, so a test or a notebook can build a trainer from parts it
 made itself. Every random stream of a run comes from one named seed table (:func:`seed_table`).
 """
@@ -9,7 +10,7 @@ made itself. Every random stream of a run comes from one named seed table (:func
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
 from functools import partial
 
 import numpy as np
@@ -18,7 +19,7 @@ from omegaconf import DictConfig
 from torchrl.envs import TransformedEnv
 
 import envs
-from gchgg.ddpg.agent import DDPGAgent
+from gchgg.ddpg import DDPGAgent, DDPGConfig
 from gchgg.hgg import estimate_max_distance
 from gchgg.run import config
 from gchgg.run.builders import (
@@ -31,7 +32,7 @@ from gchgg.run.builders import (
     make_tradeoff,
 )
 
-__all__ = ["SEEDS", "Parts", "make_env", "make_parts", "seed_table"]
+__all__ = ["SEEDS", "Parts", "ddpg_config", "make_env", "make_parts", "seed_table"]
 
 MAX_DIS_RESETS = 1000  # resets over which HGG's max_dis (largest initial-to-target distance) is taken
 SEEDS = ("explore", "her", "buffer", "eval_env", "agent", "env_noise", "eval_noise")
@@ -81,25 +82,26 @@ class Parts:
     buffer_rows: int
 
 
-def make_parts(cfg: DictConfig) -> Parts:
-    """Check the config (:func:`gchgg.run.config.check`) and build a run's parts from it. Sets torch's thread
-    count (``threads``) and its global seed; the order of the builds is that of the recorded runs."""
+def make_parts(cfg: DictConfig | config.RunConfig) -> Parts:
+    """Check the config (:func:`gchgg.run.config.check`) and build a run's parts from the checked
+    :class:`~gchgg.run.config.RunConfig`. Sets torch's thread count (``threads``) and its global seed; the
+    order of the builds is that of the recorded runs."""
     run = config.check(cfg)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)
-    seeds = seed_table(cfg.seed)
-    name, algo, graph = cfg.env.name, cfg.algo, cfg.graph
+    if run.threads:
+        torch.set_num_threads(run.threads)
+    torch.manual_seed(run.seed)
+    seeds = seed_table(run.seed)
+    name, algo, graph, noise_std = run.env.name, run.algo, run.graph, run.noise.object_std
     geometry = envs.geometry(name)
-    steps, chunk_size = geometry.episode_length, cfg.train.episodes // cfg.train.chunks
-    options = {"threshold": cfg.env.threshold, "start": cfg.env.start}
+    steps, chunk_size = geometry.episode_length, run.train.episodes // run.train.chunks
+    options = {"threshold": run.env.threshold, "start": run.env.start}
     # Observation noise (a camera's error): the policy sees noisy positions; rewards, energy and the
     # goal pool read the true achieved goal the noise transform keeps.
-    env, noise = make_env(name, chunk_size, cfg.seed, options, cfg.noise.object_std, seeds["env_noise"])
-    build_eval_env = partial(make_env, name, cfg.eval.episodes, seeds["eval_env"], options, cfg.eval.noise_std,
+    env, noise = make_env(name, chunk_size, run.seed, options, noise_std, seeds["env_noise"])
+    build_eval_env = partial(make_env, name, run.eval.episodes, seeds["eval_env"], options, run.eval.noise_std,
                              seeds["eval_noise"])
     eval_env, eval_noise = build_eval_env()
-    achieved_key = "true_achieved_goal" if cfg.noise.object_std else "achieved_goal"
+    achieved_key = "true_achieved_goal" if noise_std else "achieved_goal"
 
     def metric_of(kind: str):
         if kind != "graph":
@@ -110,34 +112,34 @@ def make_parts(cfg: DictConfig) -> Parts:
     metric = metric_of(algo.metric)
     tradeoff = None  # only samplers that weigh diversity against proximity have a λ (config.check)
     if algo.sampler in ("curriculum", "cher"):
-        tradeoff = make_tradeoff(cfg.tradeoff.name, **{k: v for k, v in cfg.tradeoff.items() if k != "name"})
+        tradeoff = make_tradeoff(run.tradeoff.name, **{k: v for k, v in asdict(run.tradeoff).items() if k != "name"})
     options = {}  # what the sampler reads: its own section
     if algo.sampler == "curriculum":
-        curriculum = cfg.curriculum
+        curriculum = run.curriculum
         other = curriculum.diversity_metric != algo.metric
         diversity_metric = metric_of(curriculum.diversity_metric) if other else None
         options = dict(num_candidates=curriculum.num_candidates, proximity=curriculum.proximity,
                        diversity_of=curriculum.diversity_of, diversity_metric=diversity_metric, scale=curriculum.scale)
     elif algo.sampler == "cher":
-        options = dict(pool_size=cfg.cher.pool_size)
+        options = dict(pool_size=run.cher.pool_size)
     sampler = make_sampler(algo.sampler, metric, tradeoff, **options)
-    copies = cfg.her.k + 1
-    buffer = make_replay_buffer(cfg.buffer.episodes, copies * steps, sampler, batch_size=cfg.train.batch_size,
+    copies = run.her.k + 1
+    buffer = make_replay_buffer(run.buffer.episodes, copies * steps, sampler, batch_size=run.train.batch_size,
                                 generator=torch.Generator().manual_seed(seeds["buffer"]))
     relabel = make_relabel(
-        partial(envs.reward, threshold=cfg.env.threshold), k=cfg.her.k, strategy=cfg.her.strategy,
+        partial(envs.reward, threshold=run.env.threshold), k=run.her.k, strategy=run.her.strategy,
         generator=torch.Generator().manual_seed(seeds["her"]),
-        true_achieved_goal_key=achieved_key if cfg.noise.object_std else None,
+        true_achieved_goal_key=achieved_key if noise_std else None,
     )  # fmt: skip
-    agent = DDPGAgent(env.obs_dim, 3, env.action_dim, run.agent.ddpg(),
-                      generator=torch.Generator().manual_seed(seeds["agent"]), matmul=cfg.matmul,
-                      precision=cfg.precision, gradients=cfg.gradients, subnormals=cfg.subnormals)
+    agent = DDPGAgent(env.obs_dim, 3, env.action_dim, ddpg_config(run.agent),
+                      generator=torch.Generator().manual_seed(seeds["agent"]), matmul=run.matmul,
+                      precision=run.precision, gradients=run.gradients, subnormals=run.subnormals)
     goal_generator = None
     if algo.goal_generator != "none":
         goal_generator = make_goal_generator(
-            algo.goal_generator, metric, max_dis=max_distance(metric, eval_env), gamma=cfg.agent.gamma,
-            stop_threshold=cfg.env.stop_threshold, success_threshold=cfg.env.threshold, pool_size=cfg.hgg.pool_size,
-            c=cfg.hgg.c, L=cfg.hgg.L,
+            algo.goal_generator, metric, max_dis=max_distance(metric, eval_env), gamma=run.agent.gamma,
+            stop_threshold=run.env.stop_threshold, success_threshold=run.env.threshold, pool_size=run.hgg.pool_size,
+            c=run.hgg.c, L=run.hgg.L,
         )  # fmt: skip
     return Parts(
         env=env, eval_env=eval_env, build_eval_env=build_eval_env,
@@ -145,8 +147,14 @@ def make_parts(cfg: DictConfig) -> Parts:
         achieved_key=achieved_key, metric=metric, tradeoff=tradeoff, sampler=sampler, buffer=buffer,
         relabel=relabel, agent=agent, goal_generator=goal_generator,
         streams={"explore": torch.Generator().manual_seed(seeds["explore"])},
-        steps=steps, buffer_rows=cfg.buffer.episodes * copies * steps,
+        steps=steps, buffer_rows=run.buffer.episodes * copies * steps,
     )  # fmt: skip
+
+
+def ddpg_config(agent: config.AgentConfig) -> DDPGConfig:
+    """The learner's own hyperparameters, each from the ``agent`` section (all its settings but
+    ``normalizer_source``, which the loop reads)."""
+    return DDPGConfig(**{f.name: getattr(agent, f.name) for f in fields(DDPGConfig)})
 
 
 def max_distance(metric, env) -> float:
