@@ -29,10 +29,12 @@ claims:
   - {id: by-fast, task: toy, kind: reaches_by, groups: [fast], by: 5, claim: "{name} by 5", paper: "5"}
   - {id: by-slow, task: toy, kind: reaches_by, groups: [slow], by: 5, claim: "{name} by 5", paper: "5"}
   - {id: by-mixed, task: toy, kind: reaches_by, groups: [mixed], by: 10, claim: "{name} by 10", paper: "10"}
-  - {id: fails, task: toy, kind: fails, groups: [never, fast, few, absent], within: 20, claim: "{name} fails",
+  - {id: fails, task: toy, kind: fails, groups: [never, flat, fast, few, absent], within: 20, claim: "{name} fails",
      paper: "-"}
   - {id: faster, task: toy, kind: faster, groups: [fast], than: [slow, fast], claim: "{name} beats {than}", paper: "x"}
   - {id: slower, task: toy, kind: faster, groups: [slow], than: fast, claim: "{name} beats {than}", paper: "x"}
+  - {id: sooner, task: toy, kind: faster, groups: [quick], than: late, claim: "{name} < {than}", paper: "x"}
+  - {id: later, task: toy, kind: faster, groups: [late], than: quick, claim: "{name} < {than}", paper: "x"}
   - {id: final-fast, task: toy, kind: final, groups: [fast], level: 1.0, spread: 0.0, claim: "1.0", paper: "1.0"}
   - {id: final-low, task: toy, kind: final, groups: [fast], level: 0.5, spread: 0.1, claim: "0.5", paper: "0.5"}
   - {id: final-never, task: toy, kind: final, groups: [never], level: 0.9, spread: 0.05, claim: "0.9", paper: "0.9"}
@@ -54,6 +56,10 @@ def results(tmp_path):
     for seed in range(3):
         write_csv(toy / f"never-seed{seed}.csv", [0.0] * (20 - 5 * seed))  # censored at 20, 15, 10
         write_csv(toy / f"stopped-seed{seed}.csv", reaching(2, length=8, level=0.9))  # the stop rule ended it at 8
+    for seed in range(4):
+        write_csv(toy / f"quick-seed{seed}.csv", reaching(3 + seed))
+        write_csv(toy / f"late-seed{seed}.csv", reaching(14 + seed))
+        write_csv(toy / f"flat-seed{seed}.csv", [0.0] * 20)  # never reached 0.9, every run to the budget
     write_csv(toy / "few-seed0.csv", [0.0] * 20)
     (tmp_path / "claims.yaml").write_text(CLAIMS)
     return tmp_path
@@ -66,23 +72,32 @@ def test_each_rule_gives_its_verdict(results):
     assert verdicts["by-fast"] == ("holds", "CI ≤ 5.5 (5 + 10 %)")  # IQM of 3, 4, 5 and its CI within [3, 5]
     assert verdicts["by-slow"] == ("contradicted", "CI > 5.5 (5 + 10 %)")
     assert verdicts["by-mixed"] == ("undecided", "CI straddles 11 (10 + 10 %)")
-    assert verdicts["fails-never"] == ("holds", "no run reached 0.9 (censored at 10–20)")
+    assert verdicts["fails-never"] == ("undecided", "no run reached 0.9, but 2 of 3 were tested to 10–20 "
+                                                    "iterations, not 20")  # "fails within 20" needs 20 iterations
+    assert verdicts["fails-flat"] == ("holds", "no run reached 0.9 in 20 iterations")
     assert verdicts["fails-fast"] == ("contradicted", "CI < 20")
     assert verdicts["fails-few"] == ("undecided", "few: 1 run (3 needed)")
     assert verdicts["fails-absent"] == ("undecided", "absent: 0 runs")
     assert rows["fails-absent"].measured == "—; 0 runs"
-    assert verdicts["faster-slow"] == ("holds", "CI above 0.5")
+    # 3 runs against 3: the CI excludes 0.5, but the exact test cannot go below 0.10
+    assert verdicts["faster-slow"] == ("undecided", "CI above 0.5, but Mann–Whitney p = 0.10 ≥ 0.05")
     assert verdicts["faster-fast"] == ("undecided", "CI contains 0.5")
-    assert verdicts["slower"] == ("contradicted", "CI below 0.5")
+    assert verdicts["slower"] == ("undecided", "CI below 0.5, but Mann–Whitney p = 0.10 ≥ 0.05")
+    assert verdicts["sooner"] == ("holds", "CI above 0.5; p < 0.05")  # 4 against 4: p = 2/70
+    assert verdicts["later"] == ("contradicted", "CI below 0.5; p < 0.05")
     assert verdicts["final-fast"] == ("holds", "CI inside [1.00, 1.00]")
     assert verdicts["final-low"] == ("contradicted", "CI above [0.40, 0.60]")
-    assert verdicts["final-never"] == ("contradicted", "CI below [0.85, 0.95]")
-    assert (verdicts["final-stopped"][0] == "undecided"
-            and "3 of 3 runs were stopped by the stop rule" in verdicts["final-stopped"][1])
+    assert verdicts["final-never"] == ("undecided", "2 of 3 runs ended before iteration 19 (2 ran out their own "
+                                                    "cap): no success measured there")
+    assert verdicts["final-stopped"] == ("undecided", "3 of 3 runs ended before iteration 19 (3 stopped early by "
+                                                      "the stop rule): no success measured there")
     assert verdicts["elsewhere"] == ("undecided", "fast: 0 runs")
     assert rows["by-fast"].measured == "first ≥ 0.9 IQM 4.0 [3.0, 5.0]; 3 runs, 0 censored"
-    assert rows["faster-slow"].measured == "P(fast beats slow) on first ≥ 0.9: 1.00 [1.00, 1.00]; 3 vs 3 runs"
-    assert rows["final-stopped"].measured == "success at 19 IQM 0.90 [0.90, 0.90]; 3 runs, 3 stopped early"
+    assert rows["faster-slow"].measured == ("P(fast beats slow) on first ≥ 0.9: 1.00 [1.00, 1.00]; 3 vs 3 runs; "
+                                            "Mann–Whitney p = 0.10")
+    assert rows["final-stopped"].measured == ("last success IQM 0.90 [0.90, 0.90] (runs ended after 8 iterations, "
+                                              "not at 19); 3 runs, 3 stopped early by the stop rule")
+    assert rows["final-fast"].measured == "success at 19 IQM 1.00 [1.00, 1.00]; 3 runs"
     assert rows["faster-slow"].claim.claim == "Fast beats Slow"
 
 
@@ -93,7 +108,7 @@ def test_the_command_writes_the_table_and_its_verdict_lines(results, capsys):
     assert text == capsys.readouterr().out
     assert ("| by-fast | Fast by 5 | 5 | first ≥ 0.9 IQM 4.0 [3.0, 5.0]; 3 runs, 0 censored "
             "| **holds**: CI ≤ 5.5 (5 + 10 %) |") in text
-    assert "- **contradicted** (5 of 15): toy: Slow by 5; Fast fails; Slow beats Fast; 0.5; 0.9\n" in text
+    assert "- **contradicted** (4 of 18): toy: Slow by 5; Fast fails; late < quick; 0.5\n" in text
 
 
 def test_only_the_task_folders_seed_files_are_read_every_seed_of_them(results):
@@ -160,28 +175,30 @@ claims:
 def test_a_claim_reads_its_groups_from_the_globs_it_names_under_its_tasks_budget(tmp_path):
     """runs: each group's CSVs from a glob (Fig. 6's ablations against the default runs elsewhere), every
     run scored as one of the claim's task; alike: holds when P(A beats B)'s CI lies in 0.5 ± margin."""
-    for seed, at in enumerate([3, 4, 5]):
+    for seed, at in enumerate([3, 4, 5, 6]):
         write_csv(tmp_path / "toy" / f"base-seed{seed}.csv", reaching(at))
         write_csv(tmp_path / "ablation" / "slow" / f"x-seed{seed}.csv", reaching(at + 10))
         write_csv(tmp_path / "ablation" / "same" / f"x-seed{seed}.csv", reaching(at))
-    write_csv(tmp_path / "toy" / "base-seed3.csv", reaching(19))  # left out by the glob below
+    write_csv(tmp_path / "toy" / "base-seed4.csv", reaching(19))  # left out by the glob below
     (tmp_path / "claims.yaml").write_text("""
 names: {base: Base, "slow": Slow}
 claims:
   - {id: f, task: toy, kind: faster, groups: [base], than: [slow, same], claim: "{name} < {than}", paper: "x",
-     runs: {base: "toy/base-seed[012].csv", slow: "ablation/slow/*.csv", same: "ablation/same/*.csv"}}
+     runs: {base: "toy/base-seed[0-3].csv", slow: "ablation/slow/*.csv", same: "ablation/same/*.csv"}}
   - {id: a, task: toy, kind: alike, groups: [base], than: [slow, same], margin: 0.25, claim: "{name} ~ {than}",
-     paper: "x", runs: {base: "toy/base-seed[012].csv", slow: "ablation/slow/*.csv", same: "ablation/same/*.csv"}}
+     paper: "x", runs: {base: "toy/base-seed[0-3].csv", slow: "ablation/slow/*.csv", same: "ablation/same/*.csv"}}
 """)
     loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
     rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
     assert rows["f-slow"].verdict == "holds" and rows["f-slow"].claim.claim == "Base < Slow"
-    assert "P(base beats slow) on first ≥ 0.9: 1.00 [1.00, 1.00]; 3 vs 3 runs" == rows["f-slow"].measured
+    assert rows["f-slow"].measured == ("P(base beats slow) on first ≥ 0.9: 1.00 [1.00, 1.00]; 4 vs 4 runs; "
+                                       "Mann–Whitney p = 0.029")  # 2 of 70 splits as extreme
     assert rows["f-same"].verdict == "undecided"
-    assert (rows["a-slow"].verdict, rows["a-slow"].reason) == ("contradicted", "CI outside [0.25, 0.75], excluding 0.5")
+    assert (rows["a-slow"].verdict, rows["a-slow"].reason) == (
+        "contradicted", "CI outside [0.25, 0.75], excluding 0.5; p < 0.05")
     assert rows["a-same"].verdict == "undecided" and rows["a-same"].reason.startswith("CI contains 0.5")
     scores, _ = claims.measure_globs(tmp_path, "toy", [("slow", "ablation/slow/*.csv")])
-    assert scores["slow"].first.tolist() == [13, 14, 15]
+    assert scores["slow"].first.tolist() == [13, 14, 15, 16]
 
 
 def test_score_auc_compares_the_areas_under_the_curves(tmp_path):
@@ -206,9 +223,11 @@ claims:
     loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
     rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
     assert (rows["f"].verdict, rows["a"].verdict) == ("contradicted", "holds")
-    assert rows["a"].measured == "P(high beats early) on AUC over iterations 0–19: 1.00 [1.00, 1.00]; 8 vs 8 runs"
+    assert rows["a"].measured == ("P(high beats early) on AUC over iterations 0–19: 1.00 [1.00, 1.00]; 8 vs 8 runs; "
+                                  "Mann–Whitney p = 0.00016")  # 2 of 12,870 splits
     assert (rows["pf"].verdict, rows["pa"].verdict) == ("contradicted", "holds")
-    assert rows["pa"].reason == "CI above 0"
+    assert rows["pa"].reason == "CI above 0; both p < 0.05"
+    assert rows["pa"].measured.endswith("8 pairs; Wilcoxon p = 0.0078, sign test p = 0.0078")  # 2 of 256 flips
     assert "on AUC over iterations 0–19, paired forks: mean " in rows["pa"].measured
 
 
@@ -283,7 +302,7 @@ claims:
     loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
     rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
     level = 100 * (1 - stats.sequential_alpha([6, 7, 8, 9, 10]))
-    assert f"] ({level:.1f} % CI, Pocock's for looks at 6-10 runs); 8 runs, " in rows["looked"].measured
+    assert f"] ({level:.1f} % CI, Pocock's for looks at 6-10 runs); 8 runs" in rows["looked"].measured
     assert "Pocock" not in rows["plain"].measured
     assert_wider(rows["looked"], than=rows["plain"])
     assert rows["unplanned"].verdict == "undecided"
@@ -311,12 +330,13 @@ claims:
     loaded, settings = claims.load_claims(tmp_path / "claims.yaml")
     rows = {r.claim.id: r for r in claims.verdicts(tmp_path, loaded, **settings)}
     assert rows["even"].measured == ("P(a beats b) on first ≥ 0.9, averaged over 2 tasks: 0.50 [0.50, 0.50]; "
-                                     "t1 3 vs 3, t2 3 vs 3 runs")
+                                     "t1 3 vs 3, t2 3 vs 3 runs; stratified Mann–Whitney p = 1.00")
     assert (rows["even"].verdict, rows["even"].reason) == ("undecided", "CI contains 0.5")
     assert rows["area"].measured.startswith("P(a beats b) on AUC (each task over its two groups' common range), "
                                             "averaged over 2 tasks: 0.50 [0.50, 0.50]")
     assert rows["ahead"].measured.startswith("P(a beats b) on first ≥ 0.9, averaged over 2 tasks: 1.00 [1.00, 1.00]")
-    assert (rows["ahead"].verdict, rows["ahead"].reason) == ("holds", "CI above 0.5")
+    assert (rows["ahead"].verdict, rows["ahead"].reason) == ("holds", "CI above 0.5; p < 0.05")
+    assert rows["ahead"].measured.endswith("stratified Mann–Whitney p = 0.0014")  # 2 of 20 · 70 relabellings
     assert (rows["early"].verdict, rows["early"].reason) == (
         "undecided", "read once, at t1 3, t3 3 runs of each; now t3 4 and 4")
     assert rows["missing"].measured == "—; t1 3 vs 3, t4 1 vs 0 runs"
@@ -327,3 +347,16 @@ claims:
         with pytest.raises(ValueError, match="claim x: tasks .* with kind faster_pooled; allowed: a mapping of two "
                                              "or more tasks"):
             claims.load_claims(tmp_path / "bad.yaml")
+
+
+def test_stopped_early_means_the_stop_rule_ended_the_run_not_its_cap(tmp_path):
+    """pick_obstacle's gchgg-seed2 ran its whole 300-iteration cap of a 400 budget at 0.88: not stopped early."""
+    def run(success):
+        write_csv(tmp_path / "r-seed0.csv", success)
+        from gchgg.analysis import plot
+        return plot.load_run(tmp_path / "r-seed0.csv")
+
+    assert claims.ended_by_stop_rule(run(reaching(5, length=12, level=0.9)), budget=20)  # 7 rows >= 0.9, then ended
+    assert not claims.ended_by_stop_rule(run([0.0] * 8 + [0.9, 0.92, 0.95, 0.88]), budget=20)  # its cap, at 0.88
+    assert not claims.ended_by_stop_rule(run([0.0] * 8 + [0.9] * 4), budget=20)  # 4 rows >= 0.9: not the rule's 5
+    assert not claims.ended_by_stop_rule(run(reaching(5, length=20)), budget=20)  # ran to the budget

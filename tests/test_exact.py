@@ -17,7 +17,8 @@ def test_mann_whitney_is_scipys_exact_test_without_ties(n, m, alternative):
     rng = np.random.default_rng(n * 100 + m)
     x, y = rng.normal(size=n) + 0.8, rng.normal(size=m)
     expected = scipy.stats.mannwhitneyu(x, y, method="exact", alternative=alternative).pvalue
-    assert exact.mann_whitney(x, y, alternative=alternative) == pytest.approx(expected, rel=1e-9)
+    got = exact.mann_whitney(x, y, alternative=alternative, enumerate_up_to=10**6)
+    assert got == pytest.approx(expected, rel=1e-9)
 
 
 def test_three_runs_against_three_cannot_go_below_a_tenth():
@@ -81,10 +82,31 @@ def test_drawn_relabellings_approach_the_enumerated_p_value_and_repeat():
     rng = np.random.default_rng(5)
     x, y = rng.normal(size=9) + 0.7, rng.normal(size=9)
     whole = exact.mann_whitney(x, y)
-    drawn = exact.mann_whitney(x, y, draws=20_000)
-    assert drawn == exact.mann_whitney(x, y, draws=20_000)  # seeded: the same digits
+    drawn = exact.mann_whitney(x, y, enumerate_up_to=0)
+    assert drawn == exact.mann_whitney(x, y, enumerate_up_to=0)  # seeded: the same digits
     assert drawn == pytest.approx(whole, abs=0.01)
-    assert exact.wilcoxon(x, y, draws=2_000) == pytest.approx(exact.wilcoxon(x, y), abs=0.03)
+    assert exact.wilcoxon(x, y, enumerate_up_to=0, draws=5_000) == pytest.approx(exact.wilcoxon(x, y), abs=0.03)
+
+
+def test_the_tasks_test_relabels_each_task_apart():
+    """A brute-force reference over two tasks: every pair of splits, the average of the two tasks' fractions."""
+    x1, y1, x2, y2 = [3.0, 9.0], [1.0, 2.0, 4.0], [5.0, 6.0, 7.0], [2.0, 8.0]
+
+    def fraction(a, b):
+        return np.mean([1.0 if u > v else 0.5 if u == v else 0.0 for u in a for v in b])
+
+    def splits(x, y):
+        pooled = x + y
+        for group in itertools.combinations(range(len(pooled)), len(x)):
+            yield [pooled[i] for i in group], [pooled[i] for i in range(len(pooled)) if i not in group]
+
+    null = [(fraction(a1, b1) + fraction(a2, b2)) / 2 for a1, b1 in splits(x1, y1) for a2, b2 in splits(x2, y2)]
+    observed = (fraction(x1, y1) + fraction(x2, y2)) / 2
+    expected = np.mean([v >= observed - 1e-12 for v in null])
+    assert exact.mann_whitney_tasks([x1, x2], [y1, y2], alternative="greater") == pytest.approx(expected)
+    assert exact.mann_whitney_tasks([x1], [y1]) == pytest.approx(exact.mann_whitney(x1, y1))
+    with pytest.raises(ValueError, match="2 tasks of X and 1 of Y"):
+        exact.mann_whitney_tasks([x1, x2], [y1])
 
 
 @pytest.mark.parametrize("call, match", [
