@@ -395,7 +395,7 @@ def plain_buffer_speed(rounds: int, size: int = 200_000, recorded: bool = False)
                 for _ in range(48):  # six pools of draw_ahead=8
                     buffer.sample()
                 times[name, threads].append((time.perf_counter() - start) / 48)
-            curriculum.sampler._pool = None
+            curriculum.sampler._pool.drop()  # its candidates drawn ahead (gchgg.fast.candidates)
             start = time.perf_counter()
             for _ in range(48):
                 curriculum.sampler.sample(curriculum.storage, BATCH)

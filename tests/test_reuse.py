@@ -350,7 +350,7 @@ def test_writes_skip_the_candidates_they_reach_and_keep_the_others():
     buffer = buffer_of(redraw, data, batch=b)
     buffer.extend(new[:50])
     buffer.sample()
-    assert redraw._pool.next == k  # dropped at the write and drawn afresh
+    assert redraw._pool.drawn.next == k  # dropped at the write and drawn afresh
 
 
 # ----------------------------------------------------------------------------- help() and schedules

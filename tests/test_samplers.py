@@ -714,6 +714,48 @@ def test_info_holds_the_choice_and_its_diagnostics_on_request(diagnostics):
         assert info["diversity_decided"].item() == float(best != int(proximity.argmax()))
 
 
+PATHS = {  # sampler settings -> the variant they stand for
+    "paper": dict(),  # eq. 15 to the episode's target, eq. 19 of the hindsight goals, λ raw
+    "ebp": dict(energy_key="energy", unreachable_distance=2.5),
+    "code": dict(goal_key="achieved_goal", target_key="desired_goal", diversity_key="achieved_goal",
+                 diversity_metric=EuclideanMetric()),  # the authors' code: achieved goals, Euclidean F_div
+    "standardized": dict(scale="standardized", energy_key="energy", neighbours=1),
+}
+
+
+@pytest.mark.parametrize("variant", list(PATHS))
+@pytest.mark.parametrize("metric_name", ["graph", "euclidean"])
+def test_plain_and_fast_paths_give_the_same_batches_and_info(graph, metric_name, variant):
+    # fast=False runs Alg. 1's step 1 as written: K candidates drawn at each sample, scored from the stored
+    # goals, nearest neighbours from all pairs. The fast path (candidates drawn ahead, per-row caches,
+    # the shortlist) must give the same indices and info, bit for bit: with draw_ahead=1 across writes,
+    # including writes that wrap the storage, and with draw_ahead=8 (a new pool after 8 samples) between writes.
+    metric = graph if metric_name == "graph" else EuclideanMetric()
+    g = torch.Generator().manual_seed(7)
+    data = goal_transitions(900, seed=5, energy=torch.rand(900, generator=g).round(decimals=1))
+    data["achieved_goal"] = data["desired_goal"] + torch.randn(900, 3, generator=g) * 0.1
+    data["desired_goal"][::7] = torch.tensor([0.0, 0.0, 0.0])  # inside the wall: off the graph
+    data["desired_goal"][1::9] = data["desired_goal"][2::9][:100]  # repeated goals
+
+    def samples(fast: bool, draw_ahead: int, writes: bool) -> list[dict]:
+        schedule = AdaptiveTradeoff(eta=50.0, sigma=0.3)
+        sampler = GraphCurriculumSampler(metric, 4, schedule, draw_ahead=draw_ahead, diagnostics=True, fast=fast,
+                                         on_write="redraw" if variant == "paper" else "keep", **PATHS[variant])
+        buffer = make_buffer(sampler, data[:600], size=700, seed=3, batch=48)
+        infos = []
+        for step in range(12):
+            schedule.update(distance=0.05 * step)  # λ changes between samples of one pool
+            if writes and step % 3 == 1:
+                buffer.extend(data[600 + 25 * step : 625 + 25 * step])  # the storage wraps at 700
+            infos.append(buffer.sample(return_info=True)[1])
+        return infos
+
+    for draw_ahead, writes in ((1, True), (8, False)):
+        plain, fast = samples(False, draw_ahead, writes), samples(True, draw_ahead, writes)
+        for step, (a, b) in enumerate(zip(plain, fast, strict=True)):
+            assert set(a) == set(b) and all(torch.equal(a[key], b[key]) for key in a), (draw_ahead, step)
+
+
 @pytest.fixture(scope="module")
 def recorded_push_new():
     """6,000 transitions drawn uniformly from the buffer of a push_new gchgg run after 7 iterations

@@ -5,7 +5,10 @@
 - :mod:`~gchgg.fast.subnormal`: the update's subnormal floats flushed to zero (``subnormals``);
 - :mod:`~gchgg.fast.adam_step`: Adam's fused step without ``torch.optim``'s bookkeeping;
 - :mod:`~gchgg.fast.small_batch`: the actor's forward and eq. 22 on the rollout's one-row steps, without modules;
-- :mod:`~gchgg.fast.nearest`: F_div's nearest-neighbour search through a Euclidean shortlist;
+- :mod:`~gchgg.fast.candidates`: Alg. 1's candidates drawn ahead and scored from per-row caches (``fast``,
+  ``draw_ahead``, ``on_write`` of the curriculum sampler), with :mod:`~gchgg.fast.rows` (the caches);
+- :mod:`~gchgg.fast.nearest`: F_div's nearest-neighbour search through a Euclidean shortlist
+  (:mod:`~gchgg.fast.shortlist`);
 - :mod:`~gchgg.fast.storage`: a replay storage that reads a sampled batch field by field.
 
 Nothing here imports the algorithm (:mod:`gchgg.ddpg`, :mod:`gchgg.samplers`, ...): the algorithm

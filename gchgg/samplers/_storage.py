@@ -1,5 +1,5 @@
-"""Shared plumbing of the samplers: reading one field from a replay storage, per-row caches, the generator,
-state files, one intra-op thread for ``sample``."""
+"""Shared plumbing of the samplers: reading and checking one field of a replay storage, the generator, state
+files, one intra-op thread for ``sample`` (their per-row caches' bookkeeping is :mod:`gchgg.fast.rows`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from tensordict import NestedKey, is_tensor_collection
 from torchrl.data.replay_buffers.storages import Storage, TensorStorage
@@ -75,54 +74,16 @@ def read_field(storage: Storage, key: NestedKey, index: torch.Tensor | None, sam
     return data.get(key)
 
 
-class WrittenRows:
-    """Which stored rows a sampler's per-row cache must (re)compute: those written since it last caught up.
-
-    The sampler calls :meth:`mark` from ``extend``/``add``/``mark_update`` with the written index,
-    and :meth:`take` before it reads its cache. ``take(n, size)`` returns the rows below ``n`` (the
-    storage's length) to recompute: rows rewritten since, and rows new to the storage; or ``None``
-    when the whole cache must be built anew (nothing cached yet, ``size`` (the cache's rows) below
-    ``n``, or a write given as something other than row indices, e.g. a slice).
-
-    >>> rows = WrittenRows()
-    >>> rows.take(4, size=10) is None  # the first time: build everything
-    True
-    >>> rows.mark(torch.tensor([1])); rows.current(6)
-    False
-    >>> rows.take(6, size=10).tolist()  # row 1 rewritten, rows 4 and 5 new
-    [1, 4, 5]
-    >>> rows.current(6)
-    True
-    """
-
-    def __init__(self) -> None:
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget everything: the next :meth:`take` asks for a full build."""
-        self._known, self._pending, self._all = 0, [], True
-
-    def mark(self, index) -> None:
-        """Rows just written: a row index, an integer tensor or array of them, or anything else (all rows)."""
-        if isinstance(index, (int, torch.Tensor, np.ndarray)) and not torch.as_tensor(index).is_floating_point():
-            self._pending.append(torch.as_tensor(index).reshape(-1).long())
-        else:
-            self.reset()
-
-    def current(self, n: int) -> bool:
-        """Whether a cache that caught up at the last :meth:`take` holds every row of a storage of length ``n``."""
-        return not self._all and not self._pending and n == self._known
-
-    def take(self, n: int, size: int) -> torch.Tensor | None:
-        """The rows to recompute now (``None``: all ``n``); afterwards the cache counts as current for ``n``."""
-        full = self._all or size < n
-        fresh = [] if full else [index[index < min(n, self._known)] for index in self._pending]
-        if not full and n > self._known:
-            fresh.append(torch.arange(self._known, n))
-        self._known, self._pending, self._all = n, [], False
-        if full:
-            return None
-        return torch.cat(fresh) if fresh else torch.empty(0, dtype=torch.long)
+def check_goal_rows(goals: torch.Tensor, key: NestedKey, sampler: object, dim: int | None = None, like: str = ""):
+    """Stored goals ``[N, d]`` read under ``key``, checked: one vector of d >= 1 values per row (``dim`` of
+    them, as ``like`` has, when given); a ``ValueError`` naming the sampler, the key and the shape otherwise."""
+    if goals.ndim != 2 or goals.shape[1] < 1 or (dim is not None and goals.shape[1] != dim):
+        allowed = f"[{dim}] like {like}" if dim is not None else "[d] with d >= 1 (a 1-D goal is stored as [1])"
+        raise ValueError(
+            f"{type(sampler).__name__} reads goals {key!r} from the storage as one vector per transition, "
+            f"{allowed}; got {tuple(goals.shape[1:])} per transition"
+        )
+    return goals
 
 
 def init_signature(cls):

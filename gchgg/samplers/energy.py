@@ -13,8 +13,8 @@ from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
 from gchgg.common.validation import check_number
+from gchgg.fast.rows import WrittenRows
 from gchgg.samplers._storage import (
-    WrittenRows,
     check_sampleable,
     dump_state,
     generator,
