@@ -29,6 +29,7 @@ import logging
 import math
 import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "disable")
@@ -43,11 +44,12 @@ from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
 from gchgg.run import checkpoint, config, fork, metrics  # noqa: E402
-from gchgg.run.evaluator import Evaluations, EvaluationSchedule  # noqa: E402
+from gchgg.run.evaluator import Evaluations, EvaluationSchedule, resolve_background  # noqa: E402
 from gchgg.run.parts import Parts, make_parts  # noqa: E402
 from gchgg.run.replay_log import ReplayLog  # noqa: E402
 from gchgg.run.rollout import collect  # noqa: E402
 from gchgg.run.run_info import open_loggers, requeued, startup_record  # noqa: E402
+from gchgg.run.summary import summary  # noqa: E402
 
 log = logging.getLogger(__name__)
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
@@ -189,9 +191,13 @@ class Trainer:
         trackers = open_loggers(cfg, self.run_dir)  # logging.backend; hyperparameters logged once
         bar = tqdm(total=cfg.train.iterations, initial=self.iteration, desc=f"{cfg.env.name}/{cfg.algo.name}",
                    unit="it", disable=not cfg.logging.progress)
-        if cfg.eval.background:
-            # the agent's resolved backend, not cfg.matmul: "auto" resolves by the products' precision
-            self.evaluations.start_background(int(cfg.threads or torch.get_num_threads()), self.agent.matmul)
+        threads = int(cfg.threads or torch.get_num_threads())
+        background, why = resolve_background(cfg.eval.background, threads)
+        if self.evaluations.require_background(background, cfg.eval.background) != background:
+            background, why = True, f"{why}; true: the checkpoint has evaluations in flight"
+        log.info(f"eval.background: {why}")
+        if background:  # the agent's resolved backend, not cfg.matmul: "auto" resolves by the products' precision
+            self.evaluations.start_background(threads, self.agent.matmul)
         self.saved_at = self.iteration
         try:
             while self.iteration < cfg.train.iterations and not self.evaluations.reached_stop(self.history, True):
@@ -233,7 +239,7 @@ class Trainer:
         self.iteration, self.env_steps, self.history = state["iteration"], state["env_steps"], state["history"]
         checkpoint.load_parts_state(self.parts, state, self.replay_log)
         # evaluations in flight when the checkpoint was written: submitted again when training goes on
-        self.evaluations.load_state_dict(state, self.cfg.eval.background)
+        self.evaluations.load_state_dict(state)
         self.logged = len(Evaluations.evaluated(self.history)) if self.evaluations.pending else len(self.history)
 
     def save(self) -> None:
@@ -253,11 +259,13 @@ class Trainer:
         self.logged = metrics.log_complete(self.history, self.logged, first, trackers)
 
 
-def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
+def run(cfg: DictConfig, run_dir: Path, overrides: Sequence[str] = ()) -> list[dict[str, float]]:
     """Trains with ``cfg`` in ``run_dir``, resuming from its checkpoint when ``cfg.resume`` or when
     the job was requeued by SLURM (:func:`requeued`). With ``init_from=<run folder>`` a new run starts
     from that run's checkpoint (:mod:`gchgg.run.fork`: its metrics rows, then this run's); once it has
-    its own checkpoint, ``resume=true`` continues it from there."""
+    its own checkpoint, ``resume=true`` continues it from there. At the end, and on Ctrl-C, it prints
+    what it made (:func:`gchgg.run.summary.summary`; ``overrides``: the command line's, for the resume
+    command it prints)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     path = run_dir / CHECKPOINT
     resume = bool(cfg.resume) or requeued()
@@ -284,14 +292,22 @@ def run(cfg: DictConfig, run_dir: Path) -> list[dict[str, float]]:
         fork.start(source, trainer)
         trainer.save()  # the fork's own checkpoint: resume=true continues it from here
         trainer.write_metrics()
-    return trainer.train()
+    started = time.perf_counter()
+    threshold = cfg.train.stop_success if cfg.train.stop_success is not None else 0.9
+    try:
+        history = trainer.train()
+    except KeyboardInterrupt:
+        print("\n" + summary(trainer.history, run_dir, time.perf_counter() - started, threshold=threshold,
+                             overrides=overrides, interrupted=True,
+                             saved_at=getattr(trainer, "saved_at", trainer.iteration)), flush=True)
+        raise
+    print(summary(history, run_dir, time.perf_counter() - started, threshold=threshold, overrides=overrides))
+    return history
 
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
 def main(cfg: DictConfig) -> None:
-    history = run(cfg, Path(HydraConfig.get().runtime.output_dir))
-    if history:
-        print(f"final success rate {history[-1]['success_rate']:.2f} after {len(history)} iterations")
+    run(cfg, Path(HydraConfig.get().runtime.output_dir), list(HydraConfig.get().overrides.task))
 
 
 if __name__ == "__main__":

@@ -48,6 +48,7 @@ def tiny(tmp_path: Path, iterations: int = 1) -> list[str]:
         "train.batch_size=16",
         "train.warmup_steps=0",
         "eval.episodes=2",
+        "eval.background=false",  # auto would start an evaluator process per test where a core is free
         "buffer.episodes=8",
         "her.k=1",
         "graph.n=[11,11,5]",

@@ -64,6 +64,7 @@ MATMUL_BACKENDS = ("auto", "onednn", "default")  # matmul (gchgg.fast.linear.MAT
 PRECISIONS = ("auto", "float32", "bfloat16")  # precision (gchgg.fast.linear.PRECISIONS)
 GRADIENTS = ("auto", "fused", "compiled", "autograd")  # gradients (the agent's GRADIENTS)
 SUBNORMALS = ("flush", "keep")  # subnormals (gchgg.fast.subnormal.SUBNORMALS)
+BACKGROUND = ("auto", True, False)  # eval.background (gchgg.run.evaluator.resolve_background)
 
 
 def _positive(section: str, config: Any, names: tuple[str, ...], *, allow_zero: bool = False) -> None:
@@ -199,11 +200,14 @@ class EvalConfig:
 
     episodes: int = 100  # deterministic evaluation episodes
     every: int = 1  # iterations between evaluations (and after the last); the early stop counts evaluations
-    background: bool = False  # evaluate each policy snapshot in a second process while training goes on
+    # evaluate each policy snapshot in a second process while training goes on: true | false | auto (where a
+    # core is free beside the run's torch threads; gchgg.run.evaluator.resolve_background). Same metrics.
+    background: Any = "auto"
     noise_std: float = 0.0  # metres: the observation noise (noise.object_std) in evaluation episodes too
 
     def check(self) -> None:
         _positive("eval", self, ("episodes", "every"))
+        check_choice("eval.background", self.background, BACKGROUND)
         check_number("eval.noise_std", self.noise_std, low=0)
 
 

@@ -8,6 +8,9 @@ whether the evaluations so far stop the run.
 last) and when the evaluations so far stop the run (``train.stop_success`` held for
 ``train.stop_patience`` evaluations).
 
+:func:`resolve_background` reads ``eval.background=auto`` on this machine: in the background where
+a core is free beside the run's torch threads, else in line.
+
 :class:`BackgroundEvaluator` (``eval.background``): the trainer hands over each evaluated
 iteration's actor (:meth:`gchgg.ddpg.agent.DDPGAgent.policy_state`) and goes on training; a spawned
 process owns an evaluation env built exactly as the trainer builds its own, runs the deterministic
@@ -20,6 +23,7 @@ and seed.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import queue
 import time
 import traceback
@@ -169,6 +173,35 @@ def _serve(build_env, steps: int, threads: int, matmul: str, requests, results) 
         results.put(("error", traceback.format_exc()))
 
 
+def resolve_background(setting: Any, threads: int, *, cpus: int | None = None,
+                       load: float | None = None) -> tuple[bool, str]:
+    """Whether to evaluate in a second process, and why: ``eval.background`` as set, or for ``"auto"``,
+    background where a core is free for the evaluator beside the run's ``threads`` torch threads.
+
+    The free cores are the CPUs this process may run on (its affinity: what ``taskset``, a cgroup
+    cpuset or SLURM's ``--cpus-per-task`` grant) less the machine's load (the 1-minute load average,
+    rounded: the other runs and jobs already there). A SLURM job of one CPU, or a run started beside
+    another on a 2-core machine, evaluates in line; a run alone on 2 cores with one thread, in the
+    background. Either way the metrics are the same (``tests/test_kill.py``).
+
+    >>> resolve_background("auto", 1, cpus=2, load=0.2)
+    (True, 'auto -> true: 2 CPUs, load 0.2, 1 torch thread: a core is free for the evaluator')
+    >>> resolve_background("auto", 1, cpus=2, load=1.1)[0]  # another run holds the second core
+    False
+    """
+    if setting is True or setting is False:
+        return setting, f"{str(setting).lower()} (set)"
+    if cpus is None:
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if load is None:
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+    free = cpus - round(load)
+    background = free >= threads + 1
+    why = (f"{cpus} CPU{'s' * (cpus != 1)}, load {load:.1f}, {threads} torch thread{'s' * (threads != 1)}: "
+           + ("a core is free for the evaluator" if background else "no core is free for an evaluator"))
+    return background, f"auto -> {str(background).lower()}: {why}"
+
+
 class Evaluations:
     """A run's evaluations on target goals, in line or in a :class:`BackgroundEvaluator`, and the stop rule.
 
@@ -245,15 +278,22 @@ class Evaluations:
     def state_dict(self) -> dict:
         return {"eval_pending": list(self.pending.items())}
 
-    def load_state_dict(self, state: dict, background: bool) -> None:
-        """The pending evaluations of a checkpoint (submitted again by :meth:`start_background`); a run
-        saved with some in flight must resume with ``eval.background=true``."""
+    def load_state_dict(self, state: dict) -> None:
+        """The pending evaluations of a checkpoint, submitted again by :meth:`start_background` (a run saved
+        with some in flight resumes in the background: :meth:`require_background`)."""
         self.pending = dict(state.get("eval_pending", []))
-        if self.pending and not background:
+
+    def require_background(self, background: bool, setting: Any) -> bool:
+        """``background`` as resolved, unless evaluations are pending from a checkpoint: then the background
+        evaluator must take them (``eval.background=auto`` turns it on; ``false`` is refused)."""
+        if not self.pending or background:
+            return background
+        if setting is False:
             raise ValueError(
                 f"the checkpoint has evaluations of iterations {sorted(self.pending)} in flight "
-                "(eval.background=true): resume it with eval.background=true"
+                "(eval.background=true): resume it with eval.background=true or auto"
             )
+        return True
 
     def close(self) -> None:
         if self.background is not None:
