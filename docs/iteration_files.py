@@ -27,12 +27,15 @@ from gchgg.train import CONF_DIR, Trainer  # noqa: E402
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--algo", default="gchgg")
+    parser.add_argument("--plain", action="store_true",
+                        help="the plain path: float32 products on torch's matmul, autograd's update (no speed device)")
     args = parser.parse_args()
+    plain = ["precision=float32", "matmul=default", "gradients=autograd"] if args.plain else []
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=[
             "env=push_new", f"algo={args.algo}", "train.episodes=2", "train.updates=4", "train.batch_size=64",
             "train.warmup_steps=0", "eval.episodes=2", "buffer.episodes=16", "graph.n=[11,11,5]",
-            "logging.progress=false"])  # fmt: skip
+            "logging.progress=false", "eval.background=false", *plain])  # fmt: skip
     with tempfile.TemporaryDirectory() as run_dir:
         trainer = Trainer(cfg, Path(run_dir))
         trainer.iteration_step()

@@ -292,16 +292,18 @@ def run(cfg: DictConfig, run_dir: Path, overrides: Sequence[str] = ()) -> list[d
         fork.start(source, trainer)
         trainer.save()  # the fork's own checkpoint: resume=true continues it from here
         trainer.write_metrics()
-    started = time.perf_counter()
+    started, resumed_at = time.perf_counter(), trainer.iteration
     threshold = cfg.train.stop_success if cfg.train.stop_success is not None else 0.9
     try:
         history = trainer.train()
     except KeyboardInterrupt:
         print("\n" + summary(trainer.history, run_dir, time.perf_counter() - started, threshold=threshold,
                              overrides=overrides, interrupted=True,
-                             saved_at=getattr(trainer, "saved_at", trainer.iteration)), flush=True)
+                             saved_at=getattr(trainer, "saved_at", trainer.iteration), resumed_at=resumed_at),
+              flush=True)
         raise
-    print(summary(history, run_dir, time.perf_counter() - started, threshold=threshold, overrides=overrides))
+    print(summary(history, run_dir, time.perf_counter() - started, threshold=threshold, overrides=overrides,
+                  resumed_at=resumed_at))
     return history
 
 

@@ -63,7 +63,7 @@ def test_the_run_logs_its_choice_and_ends_with_a_summary(tmp_path, capsys, caplo
     final = history[-1]["success_rate"]
     assert out[start + 1].startswith(f"success rate: final {final:.2f}, best ")
     assert out[start + 2] == f"run folder: {run_dir} (metrics.csv, checkpoint.pt, policy.pt, config.yaml)"
-    assert out[start + 6] == (f"  resume:   python -m gchgg.train env=reach algo=her train.iterations=2 resume=true "
+    assert out[start + 6] == (f"  resume:   python -m gchgg.train env=reach algo=her resume=true "
                               f"hydra.run.dir={run_dir} train.iterations=<more>")
     for line in out[start + 3:start + 6]:  # plot, evaluate, export: commands that exist
         module = line.split("python -m ")[1].split()[0]
@@ -76,5 +76,6 @@ def test_the_summary_of_an_interrupted_run_names_its_last_checkpoint():
     assert text[0] == "interrupted after 2 iterations in 1 h 02 min; its last checkpoint holds 1 iterations"
     assert text[1] == "success rate: final 0.95, best 0.95 (iteration 0), first >= 0.9 at iteration 0"
     assert text[-1].endswith("resume=true hydra.run.dir=runs/x")
+    assert summary(rows, Path("r"), 1, resumed_at=1).startswith("trained iterations 1–1 (2 in all) in 0 min 01 s")
     assert "never >= 0.9" in summary([{"iteration": 0, "success_rate": math.nan}, {"iteration": 1,
                                       "success_rate": 0.5}], Path("r"), 1).splitlines()[1]

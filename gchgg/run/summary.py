@@ -15,7 +15,8 @@ def _duration(seconds: float) -> str:
 
 
 def summary(history: Sequence[dict], run_dir: Path, seconds: float, *, threshold: float = 0.9,
-            overrides: Sequence[str] = (), interrupted: bool = False, saved_at: int | None = None) -> str:
+            overrides: Sequence[str] = (), interrupted: bool = False, saved_at: int | None = None,
+            resumed_at: int = 0) -> str:
     """The lines printed when a run ends.
 
     Args:
@@ -25,6 +26,7 @@ def summary(history: Sequence[dict], run_dir: Path, seconds: float, *, threshold
         threshold: the success rate whose first crossing is reported (``train.stop_success``, else 0.9).
         overrides: the command line's overrides, repeated in the resume command.
         interrupted: the run was stopped by Ctrl-C (``saved_at``: the iterations its last checkpoint holds).
+        resumed_at: the iterations the run held when this process took it up (a resumed run).
 
     >>> rows = [{"iteration": i, "success_rate": r} for i, r in enumerate([0.1, 0.92, 0.88])]
     >>> print(summary(rows, Path("out/run"), 95, overrides=["env=reach"]).splitlines()[1])
@@ -32,11 +34,12 @@ def summary(history: Sequence[dict], run_dir: Path, seconds: float, *, threshold
     """
     evaluated = [row for row in history if not math.isnan(row.get("success_rate", math.nan))]
     iterations = len(history)
+    done = (f"iterations {resumed_at}–{iterations - 1} ({iterations} in all)" if resumed_at
+            else f"{iterations} iterations")
     if interrupted:
-        head = (f"interrupted after {iterations} iterations in {_duration(seconds)}; its last checkpoint holds "
-                f"{saved_at} iterations")
+        head = f"interrupted after {done} in {_duration(seconds)}; its last checkpoint holds {saved_at} iterations"
     else:
-        head = f"trained {iterations} iterations in {_duration(seconds)}"
+        head = f"trained {done} in {_duration(seconds)}"
     lines = [head]
     if evaluated:
         best = max(evaluated, key=lambda row: row["success_rate"])
@@ -45,7 +48,8 @@ def summary(history: Sequence[dict], run_dir: Path, seconds: float, *, threshold
         lines.append(f"success rate: final {evaluated[-1]['success_rate']:.2f}, best {best['success_rate']:.2f} "
                      f"(iteration {best['iteration']}), {reached}")
     folder = shlex.quote(str(run_dir))
-    resume = " ".join(shlex.quote(o) for o in overrides if not o.startswith(("resume=", "hydra.run.dir=")))
+    dropped = ("resume=", "hydra.run.dir=") + (() if interrupted else ("train.iterations=",))
+    resume = " ".join(shlex.quote(o) for o in overrides if not o.startswith(dropped))
     lines += [
         f"run folder: {run_dir} (metrics.csv, checkpoint.pt, policy.pt, config.yaml)",
         f"  plot:     python -m gchgg.analysis.plot {folder} --out {shlex.quote(str(run_dir / 'curves.png'))}",
