@@ -113,10 +113,32 @@ def test_observations_match_specs(name):
     geom = envs.geometry(name)
     assert env.obs_dim == (25 if geom.object_range is not None else 10)
     assert env.action_dim == geom.action_dim
-    for td in [env.reset()] + [s["next"] for s in _rollout(env, _random_actions(env, 5))]:
+    layout = envs.observation_layout(name)
+    td = env.reset()
+    moved = False
+    for action in [None, *_random_actions(env, 5)]:
+        if action is not None:
+            before = td["observation"][:, layout["grip_position"]].clone()
+            td = env.step(td.set("action", action))["next"]
+            moved |= bool((td["observation"][:, layout["grip_position"]] - before).abs().max() > 1e-3)
         for key, spec in env.observation_spec.items():
             assert td[key].dtype == spec.dtype and td[key].shape == spec.shape, key
-            assert spec.is_in(td[key]), key
+        # each named part of the observation is the physics' own read-out of it (float32 rounding apart)
+        for i, physics in enumerate(env.physics):
+            observation = td["observation"][i].double().numpy()
+            grip = physics.grip_position()
+            parts = {"grip_position": grip, "finger_positions": physics.finger_positions(),
+                     "grip_velocity": physics.grip_velocity() * kuka.CONTROL_TIMESTEP,
+                     "finger_velocities": physics.finger_velocities() * kuka.CONTROL_TIMESTEP}
+            if env.has_object:
+                parts |= {"object_position": physics.object_position(),
+                          "object_relative": physics.object_position() - grip}
+            for part, value in parts.items():
+                np.testing.assert_allclose(observation[layout[part]], value, atol=1e-6, err_msg=part)
+            achieved = physics.object_position() if env.has_object else grip
+            np.testing.assert_allclose(td["achieved_goal"][i].double().numpy(), achieved, atol=1e-6)
+            np.testing.assert_allclose(td["desired_goal"][i].double().numpy(), physics.target_position(), atol=1e-6)
+    assert moved  # the grip moved, so a part read from the wrong place or time would be told apart
     dm_env = envs.load(name, seed=1)
     observation = dm_env.reset().observation
     assert observation["observation"].shape == (env.obs_dim,)

@@ -163,16 +163,53 @@ def test_table_error_below_resolution_and_1mm():
     assert graph.table_bytes == 2 * (graph.num_vertices + 1) * (graph.num_vertices + 2) // 2
 
 
-def test_symmetry_and_triangle_inequality(graph):
+def reference_snap(goals, field=FIELD, obstacles=(WALL,), n=N, margin=0.0):
+    """Each goal's free lattice point, written here (eq. 14: the nearest lattice point; -1 outside the field
+    or on a blocked point), as an index into ``lattice_dijkstra``'s points, and which goals sit safely away
+    from a rounding half-way plane or the field's faces (float32 rounding could tip those either way)."""
+    (center, half), n = (np.asarray(v, dtype=float) for v in field), np.asarray(n)
+    low, spacing = center - half, 2 * half / (n - 1)
+    g = np.asarray(goals, dtype=np.float64)
+    units = (g - low) / spacing
+    ijk = np.rint(units).astype(int)
+    inside = np.all((g >= low) & (g <= center + half), axis=1)
+    # lattice_dijkstra numbers the free points in C order over the lattice
+    lattice = np.stack(np.meshgrid(*(np.arange(k) for k in n), indexing="ij"), -1).reshape(-1, 3)
+    free = np.ones(len(lattice), dtype=bool)
+    for c, h in obstacles:
+        free &= ~np.all(np.abs(low + lattice * spacing - np.asarray(c)) <= np.asarray(h) + margin + 1e-9, axis=1)
+    number = np.full(len(lattice), -1)
+    number[free] = np.arange(free.sum())
+    flat = np.ravel_multi_index(tuple(np.clip(ijk, 0, n - 1).T), tuple(n))
+    index = np.where(inside, number[flat], -1)  # -1 also on a blocked point
+    clear = (np.abs(units - np.floor(units) - 0.5) > 1e-4).all(1)
+    clear &= (np.abs(g - low) > 2e-5).all(1) & (np.abs(g - (center + half)) > 2e-5).all(1)
+    return index, clear
+
+
+def test_distance_of_random_goals_equals_snap_and_dijkstra_written_here(graph):
+    """d_G of random goals (some outside the field, some on the wall) equals the shortest path between their
+    nearest free lattice points on a lattice built here (scipy Dijkstra), ``inf`` exactly where a goal is off
+    the graph: a wrong snap (floor, off by one), wrong edge weights or a table that is not shortest-path fails."""
     generator = torch.Generator().manual_seed(0)
-    a, b, c = (uniform_goals(graph, 20_000, generator) for _ in range(3))
-    ab, ba = graph.distance(a, b), graph.distance(b, a)
-    assert torch.equal(ab, ba)
-    bc, ac = graph.distance(b, c), graph.distance(a, c)
-    finite = ab.isfinite() & bc.isfinite()
-    assert finite.float().mean() > 0.5  # most triples avoid the wall, so the check has teeth
-    assert (ac[finite] <= ab[finite] + bc[finite] + 1.5 * graph.resolution).all()
-    assert ac[finite].isfinite().all()  # the wall world is connected
+    a, b = (uniform_goals(graph, 20_000, generator, slack=0.01) for _ in range(2))
+    points, exact = lattice_dijkstra(FIELD, [WALL], N, 0.0)
+    (ia, clear_a), (ib, clear_b) = reference_snap(a.numpy()), reference_snap(b.numpy())
+    keep = torch.from_numpy(clear_a & clear_b)
+    expected = torch.from_numpy(np.where((ia >= 0) & (ib >= 0), exact[ia, ib], math.inf))
+    got = graph.distance(a, b).double()
+    assert keep.float().mean() > 0.99
+    got, expected = got[keep], expected[keep]
+    assert torch.equal(got.isinf(), expected.isinf())
+    finite = expected.isfinite()
+    assert 0.5 < finite.float().mean() < 0.9  # most pairs are on the graph, some off it: both are checked
+    assert (got[finite] - expected[finite]).abs().max() <= graph.resolution / 2 + 1e-6
+    # pairs on either side of the wall, west of its gap at x = 0.3: the path around it is over 0.2 m longer than
+    # the straight line (which a Euclidean "d_G" or a graph that ignores the wall would give)
+    a, b = a[keep], b[keep]
+    across = finite & (a[:, 1] < -0.05) & (b[:, 1] > 0.1) & (a[:, 0] < 0.0) & (b[:, 0] < 0.0)
+    straight = torch.linalg.vector_norm(a - b, dim=-1).double()
+    assert across.sum() > 100 and (got[across] > straight[across] + 0.2).all()
 
 
 def test_inf_outside_field_inside_obstacle_and_nan(graph):
@@ -243,12 +280,26 @@ def test_snap_nearest_and_floor():
 
 
 def test_vertex_index_and_distance_between_vertices(graph):
+    """vertex_index maps goals to the nearest free lattice point found here (-1 off the graph), and
+    distance_between_vertices of those indices equals the shortest paths of the lattice built here."""
     generator = torch.Generator().manual_seed(2)
     goals = uniform_goals(graph, 300, generator, slack=0.05)
     index = graph.vertex_index(goals)
     assert index.dtype == torch.int64 and (index >= -1).all() and (index < graph.num_vertices).all()
-    assert ((index == -1) == graph.distance(goals, goals).isinf()).all()
+    points, exact = lattice_dijkstra(FIELD, [WALL], N, 0.0)
+    expected, clear = reference_snap(goals.numpy())
+    assert clear.all()  # no goal of this draw sits within 10 µm of a half-way plane or 20 µm of the field's faces
+    assert torch.equal(index, torch.from_numpy(expected))
+    on = index >= 0
+    nearest = torch.from_numpy(points[expected[on.numpy()]]).float()  # the free lattice point nearest each goal, here
+    assert torch.allclose(graph.vertices[index[on]], nearest, atol=1e-6)
+    assert ((goals[on] - nearest).abs() <= 0.05 + 1e-6).all()  # within half a spacing on every axis
     by_vertex = graph.distance_between_vertices(index[:, None], index[None, :])
+    reference = torch.from_numpy(np.where(on[:, None] & on[None, :], exact[expected[:, None], expected[None, :]],
+                                          math.inf))
+    assert torch.equal(by_vertex.isinf(), reference.isinf())
+    finite = reference.isfinite()
+    assert (by_vertex.double() - reference)[finite].abs().max() <= graph.resolution / 2 + 1e-6
     assert torch.equal(by_vertex, graph.distance(goals[:, None], goals[None, :]))
     with pytest.raises(IndexError, match=r"\[-1, "):
         graph.distance_between_vertices(torch.tensor([graph.num_vertices]), torch.tensor([0]))
