@@ -125,7 +125,7 @@ def draw(storage, cfg, metric, candidates: int, tradeoff: float, samples: int, s
     c = curriculum_of(cfg)
     sampler = make_sampler(
         "curriculum", metric, tradeoff, num_candidates=candidates, proximity=c.proximity,
-        diversity_of=c.diversity_of, diversity_metric=diversity_metric, scale=c.get("scale", "raw"),
+        diversity_of=c.diversity_of, diversity_metric=diversity_metric, scale=c.get("scale", "raw"), fast=True,
     )  # fmt: skip
     buffer = TensorDictReplayBuffer(
         storage=storage, sampler=sampler, batch_size=cfg.train.batch_size, generator=torch.Generator().manual_seed(seed)

@@ -81,7 +81,7 @@ def draws(storage, metric, tradeoff: float, candidates: int, samples: int, batch
     default GC-HGG curriculum sampler with ``candidates`` (1: EBP) at λ = ``tradeoff``."""
     default = CurriculumConfig()  # algo=gchgg's curriculum: eq. 15 proximity to T*, eq. 19 diversity of the goals
     sampler = make_sampler("curriculum", metric, tradeoff, num_candidates=candidates, proximity=default.proximity,
-                           diversity_of=default.diversity_of, diversity_metric=None, scale=scale)
+                           diversity_of=default.diversity_of, diversity_metric=None, scale=scale, fast=True)
     sampler.draw_ahead = max(1, min(sampler.draw_ahead, 4096 // candidates))  # bounded scratch at K = 512
     buffer = TensorDictReplayBuffer(storage=storage, sampler=sampler, batch_size=batch,
                                     generator=torch.Generator().manual_seed(seed))

@@ -28,9 +28,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--algo", default="gchgg")
     parser.add_argument("--plain", action="store_true",
-                        help="the plain path: float32 products on torch's matmul, autograd's update (no speed device)")
+                        help="plain=true: the algorithm alone, no speed device of gchgg/fast")
     args = parser.parse_args()
-    plain = ["precision=float32", "matmul=default", "gradients=autograd"] if args.plain else []
+    plain = ["plain=true"] if args.plain else []
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=[
             "env=push_new", f"algo={args.algo}", "train.episodes=2", "train.updates=4", "train.batch_size=64",

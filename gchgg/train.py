@@ -48,7 +48,7 @@ from gchgg.run.evaluator import Evaluations, EvaluationSchedule, resolve_backgro
 from gchgg.run.parts import Parts, make_parts  # noqa: E402
 from gchgg.run.replay_log import ReplayLog  # noqa: E402
 from gchgg.run.rollout import collect  # noqa: E402
-from gchgg.run.run_info import open_loggers, requeued, startup_record  # noqa: E402
+from gchgg.run.run_info import open_loggers, requeued, resolved_settings, startup_record  # noqa: E402
 from gchgg.run.summary import summary  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -188,7 +188,7 @@ class Trainer:
     def train(self) -> list[dict[str, float]]:
         """Runs the remaining iterations (:meth:`step`); returns the metrics history."""
         cfg = self.cfg
-        trackers = open_loggers(cfg, self.run_dir)  # logging.backend; hyperparameters logged once
+        trackers = open_loggers(cfg, self.run_dir, resolved_settings(self.agent))  # logging.backend; hparams once
         bar = tqdm(total=cfg.train.iterations, initial=self.iteration, desc=f"{cfg.env.name}/{cfg.algo.name}",
                    unit="it", disable=not cfg.logging.progress)
         threads = int(cfg.threads or torch.get_num_threads())
@@ -284,7 +284,7 @@ def run(cfg: DictConfig, run_dir: Path, overrides: Sequence[str] = ()) -> list[d
         checkpoint.remove_temporaries(folder)
     trainer = Trainer(cfg, run_dir)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
-    log.info(startup_record(cfg, trainer.agent.gradients))
+    log.info(startup_record(cfg, resolved_settings(trainer.agent)))
     if resume and path.exists():
         trainer.load_state_dict(checkpoint.load(path))
         print(f"resumed {run_dir} after iteration {trainer.iteration}")

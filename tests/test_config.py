@@ -120,11 +120,13 @@ def test_the_builders_build_each_choice_and_declare_no_default(tmp_path):
     settings = {"curriculum": dict(num_candidates=2, proximity="goal_to_target", diversity_of="goal",
                                    diversity_metric=None, scale="raw"), "cher": dict(pool_size=4)}
     for kind in schema.SAMPLERS:
-        builders.make_sampler(kind, euclidean, tradeoff, **settings.get(kind, {}))
+        for fast in (True, False):  # the speed devices, or the plain path (plain=true)
+            builders.make_sampler(kind, euclidean, tradeoff, fast=fast, **settings.get(kind, {}))
     hgg = dict(max_dis=1.0, gamma=0.98, stop_threshold=None, success_threshold=0.05, pool_size=4, c=3.0, L=5.0)
     generators = [builders.make_goal_generator(kind, euclidean, **hgg) for kind in schema.GOAL_GENERATORS]
     assert generators[0] is None and isinstance(generators[1], HGGGoalGenerator)
-    for call in (lambda: builders.make_metric("manhattan"), lambda: builders.make_sampler("best", euclidean, None),
+    for call in (lambda: builders.make_metric("manhattan"),
+                 lambda: builders.make_sampler("best", euclidean, None, fast=True),
                  lambda: builders.make_goal_generator("her", euclidean, **hgg)):
         with pytest.raises(KeyError):  # not a setting's check: config.check names the setting before any build
             call()

@@ -97,5 +97,5 @@ def test_updates_with_subnormals_flushed_give_the_same_networks_bit_for_bit():
 
 
 def test_a_bad_setting_is_named():
-    with pytest.raises(ValueError, match="subnormals must be one of 'flush', 'keep', got 'off'"):
+    with pytest.raises(ValueError, match="subnormals must be one of 'auto', 'flush', 'keep', got 'off'"):
         DDPGAgent(OBS, GOAL, ACT, hidden=HIDDEN, subnormals="off")

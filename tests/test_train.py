@@ -188,7 +188,7 @@ def test_corrupt_checkpoint_is_an_error_that_says_so(tmp_path):
         ("graph.margin=-0.1", "margin"),
         ("matmul=mkl", "matmul must be one of 'auto', 'onednn', 'default', got 'mkl'"),
         ("gradients=manual", "gradients must be one of 'auto', 'fused', 'compiled', 'autograd', got 'manual'"),
-        ("subnormals=off", "subnormals must be one of 'flush', 'keep', got 'off'"),
+        ("subnormals=off", "subnormals must be one of 'auto', 'flush', 'keep', got 'off'"),
     ],
 )
 def test_bad_configuration_fails_before_training_naming_the_setting(override, message, tmp_path):

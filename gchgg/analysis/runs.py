@@ -20,7 +20,8 @@ import numpy as np
 
 __all__ = ["FRACTIONS", "Run", "curves", "find_runs", "first_at", "group_runs", "iqr", "load_run", "seed_of"]
 
-_IGNORED = ("seed", "resume", "threads", "matmul", "logging.", "graph.cache_dir", "hydra.")  # never a group's setting
+# never a group's setting (subnormals: the same networks either way; flush before its default became auto)
+_IGNORED = ("seed", "resume", "threads", "matmul", "subnormals", "logging.", "graph.cache_dir", "hydra.")
 _SEED_SUFFIX = re.compile(r"-seed\d+$")
 
 

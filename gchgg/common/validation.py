@@ -1,4 +1,4 @@
-"""Checks of settings and arguments: one helper for numbers in a range, one for choices.
+"""Checks of settings and arguments: one helper for numbers in a range, one for choices, one for a metric's distances.
 
 Every error names the setting, the bad value and what is allowed, e.g.
 ``ValueError: train.episodes must be an integer > 0, got 0``; NaN and ±inf are refused unless
@@ -23,7 +23,9 @@ import numbers
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["check_choice", "check_number"]
+import torch
+
+__all__ = ["check_choice", "check_distances", "check_number"]
 
 
 def _bound(x: float) -> str:
@@ -79,3 +81,22 @@ def check_choice(name: str, value: Any, allowed: Sequence[Any]) -> Any:
     if value not in allowed:
         raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
     return value
+
+
+def check_distances(distance: Any, name: str, shape: torch.Size | tuple | None = None) -> torch.Tensor:
+    """``distance`` as a float32 tensor (a metric returning another dtype, e.g. float64, is cast); a
+    ``ValueError`` naming the metric (``name``) if it holds NaN or, when ``shape`` is given, has another shape.
+
+    The samplers' check of what a metric returns, on their plain paths and in the nearest-neighbour engine alike.
+    """
+    distance = torch.as_tensor(distance)
+    if shape is not None and distance.shape != torch.Size(shape):
+        raise ValueError(
+            f"the {name} must return one distance per pair of goals, shape {tuple(shape)} here "
+            f"(goals [..., d] -> [...]), got shape {tuple(distance.shape)}"
+        )
+    if distance.dtype != torch.float32:
+        distance = distance.to(torch.float32)
+    if bool(torch.isnan(distance).any()):
+        raise ValueError(f"the {name} returned NaN distances; goals must be finite")
+    return distance

@@ -17,7 +17,28 @@ by autograd or by hand with the same result bit for bit (:mod:`gchgg.fast.fused_
 picks who computes the wide layers' products (:mod:`gchgg.fast.linear`: oneDNN where measured faster), so
 does ``subnormals`` (:mod:`gchgg.fast.subnormal`), so does stepping the fused Adam optimisers through
 :func:`gchgg.fast.adam_step.adam_step`, and so do the rollout's one-row paths
-(:mod:`gchgg.fast.small_batch`).
+(:mod:`gchgg.fast.small_batch`). ``fast=False`` (a run's ``plain=true``) is the plain path: none of them is
+called, the settings take their :data:`PLAIN` values, and the agent is the networks, the loss, eq. 22 and
+``torch.optim.Adam`` alone, with the same numbers (``tests/test_plain.py``).
+
+An agent, one update and its value:
+
+    >>> from tensordict import TensorDict
+    >>> init = torch.Generator().manual_seed(0)
+    >>> agent = DDPGAgent(obs_dim=5, goal_dim=3, action_dim=2, hidden=(32,), generator=init)
+    >>> rng = torch.Generator().manual_seed(1)
+    >>> obs, goal = torch.randn(4, 5), torch.randn(4, 3)
+    >>> agent.update_normalizer(obs, goal)
+    >>> agent.act(obs, goal, explore=True, generator=rng).shape
+    torch.Size([4, 2])
+    >>> batch = TensorDict({
+    ...     "observation": obs, "desired_goal": goal, "action": agent.random_action(4, rng),
+    ...     "next": {"observation": obs + 0.1, "reward": -torch.ones(4, 1)},
+    ... }, [4])
+    >>> sorted(agent.update(batch))
+    ['loss_actor', 'loss_value', 'pred_value', 'target_value']
+    >>> agent.value(obs, goal).shape
+    torch.Size([4])
 
 The networks' and the loss's names are importable from here too (``gchgg.ddpg.agent.DDPGConfig``): older
 code, and checkpoints pickled as ``gchgg.agent.*``, name them so.
@@ -48,12 +69,21 @@ from gchgg.ddpg.networks import (
 )
 from gchgg.fast.adam_step import adam_step
 from gchgg.fast.fused_update import FusedDDPGUpdate, compiler_found, unsupported
-from gchgg.fast.linear import OneDNNLinear, products_in, resolve_matmul, resolve_precision, use_onednn
+from gchgg.fast.linear import (
+    MATMUL_BACKENDS,
+    PRECISIONS,
+    OneDNNLinear,
+    products_in,
+    resolve_matmul,
+    resolve_precision,
+    use_onednn,
+)
 from gchgg.fast.small_batch import OneRowExploration, SmallBatchActor, one_row_policy
 from gchgg.fast.subnormal import SUBNORMALS, flush_subnormals
 
 __all__ = [
     "GRADIENTS",
+    "PLAIN",
     "DDPGAgent",
     "DDPGConfig",
     "GoalConditionedActor",
@@ -75,6 +105,10 @@ which needs a C++ compiler) for the batches whose products run on oneDNN, equal 
 faster by the Python and element-wise passes it removes; ``auto``: ``compiled`` where the products are
 bfloat16 on oneDNN and a C++ compiler is found (:func:`gchgg.fast.fused_update.compiler_found`), else ``fused``
 where it applies (the ReLU MLPs :func:`make_ddpg_networks` builds), else ``autograd``."""
+
+PLAIN = {"matmul": "default", "precision": "float32", "gradients": "autograd", "subnormals": "keep"}
+"""The settings of the plain path (``fast=False``): torch's matmul in float32, autograd's gradients, IEEE
+subnormals. Each setting's ``auto`` resolves to its value here; another value is refused."""
 
 
 def hand_differentiated(loss: HindsightDDPGLoss, gradients: str, precision: str) -> FusedDDPGUpdate | None:
@@ -103,6 +137,19 @@ def hand_differentiated(loss: HindsightDDPGLoss, gradients: str, precision: str)
     return None
 
 
+def plain_settings(matmul: str, precision: str, gradients: str, subnormals: str) -> tuple[str, str, str, str]:
+    """The four speed settings on the plain path: each ``auto`` or its :data:`PLAIN` value, which it becomes;
+    another value is a ``ValueError`` naming the setting."""
+    settings = {"matmul": matmul, "precision": precision, "gradients": gradients, "subnormals": subnormals}
+    for (name, value), allowed in zip(settings.items(), (MATMUL_BACKENDS, PRECISIONS, GRADIENTS, SUBNORMALS),
+                                      strict=True):
+        check_choice(name, value, allowed)
+        if value not in ("auto", PLAIN[name]):
+            raise ValueError(f"fast=False (the plain path) computes with {name}={PLAIN[name]!r}, "
+                             f"got {name}={value!r}; pass {name}='auto' or {PLAIN[name]!r}, or fast=True")
+    return tuple(PLAIN.values())
+
+
 class DDPGAgent:
     """Goal-conditioned DDPG with the reference hyperparameters: act, learn, value, checkpoint.
 
@@ -122,43 +169,31 @@ class DDPGAgent:
             :attr:`precision`. It changes the numbers (rounding), so runs record it; acting stays float32.
         gradients: how :meth:`update` computes the gradients, one of :data:`GRADIENTS`, resolved into
             :attr:`gradients`. Speed only: the gradients are autograd's.
-        subnormals: ``"flush"`` (default) runs :meth:`update` with subnormal floats flushed to zero, the networks
-            the same bit for bit (:mod:`gchgg.fast.subnormal`); ``"keep"`` computes with IEEE subnormals.
+        subnormals: ``"flush"``: :meth:`update` flushes subnormal floats to zero, the same networks bit for bit
+            (:mod:`gchgg.fast.subnormal`); ``"keep"``: IEEE subnormals; ``"auto"`` (default): ``flush``, or
+            ``keep`` with ``fast=False``.
+        fast: ``True`` (default): the speed devices (module docstring) where the settings choose them.
+            ``False``: the plain path, which calls none (:func:`plain_settings`): the same actions and draws.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
     The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
     ``action [B, A]``, ``("next", "observation")`` and ``("next", "reward") [B, 1]``; other keys are
     ignored (in particular ``done``: there is no done mask).
-
-    Examples:
-        >>> from tensordict import TensorDict
-        >>> init = torch.Generator().manual_seed(0)
-        >>> agent = DDPGAgent(obs_dim=5, goal_dim=3, action_dim=2, hidden=(32,), generator=init)
-        >>> rng = torch.Generator().manual_seed(1)
-        >>> obs, goal = torch.randn(4, 5), torch.randn(4, 3)
-        >>> agent.update_normalizer(obs, goal)
-        >>> agent.act(obs, goal, explore=True, generator=rng).shape
-        torch.Size([4, 2])
-        >>> batch = TensorDict({
-        ...     "observation": obs, "desired_goal": goal, "action": agent.random_action(4, rng),
-        ...     "next": {"observation": obs + 0.1, "reward": -torch.ones(4, 1)},
-        ... }, [4])
-        >>> sorted(agent.update(batch))
-        ['loss_actor', 'loss_value', 'pred_value', 'target_value']
-        >>> agent.value(obs, goal).shape
-        torch.Size([4])
     """
 
     def __init__(self, obs_dim: int, goal_dim: int, action_dim: int, config: DDPGConfig | None = None, *,
                  generator: torch.Generator | None = None, matmul: str = "auto", precision: str = "float32",
-                 gradients: str = "auto", subnormals: str = "flush", **overrides: Any) -> None:
+                 gradients: str = "auto", subnormals: str = "auto", fast: bool = True, **overrides: Any) -> None:
         unknown = set(overrides) - {f.name for f in fields(DDPGConfig)}
         if unknown:
             raise TypeError(f"unknown DDPGAgent settings {sorted(unknown)}; the settings are DDPGConfig's fields")
         config = replace(config or DDPGConfig(), **overrides)
         self.config = config
+        self.fast = bool(fast)
         check_choice("subnormals", subnormals, SUBNORMALS)
-        self.subnormals = subnormals
+        if not self.fast:  # the plain path: each setting at its plain value (auto resolves to it)
+            matmul, precision, gradients, subnormals = plain_settings(matmul, precision, gradients, subnormals)
+        self.subnormals = "flush" if subnormals == "auto" else subnormals
         self.obs_dim, self.goal_dim, self.action_dim = int(obs_dim), int(goal_dim), int(action_dim)
         self.gamma = float(config.gamma)
         self.polyak = float(config.polyak)
@@ -174,17 +209,22 @@ class DDPGAgent:
         self.loss_module = HindsightDDPGLoss(
             actor, critic, gamma=config.gamma, action_l2=config.action_l2, clip_return=config.clip_return
         )
-        self.precision = resolve_precision(precision, matmul)  # "auto" -> what this machine does well
-        self.matmul = resolve_matmul(matmul, self.precision)  # the backend the layers got: "onednn" or "default"
-        use_onednn(self.loss_module, self.matmul)  # the online and the target networks
-        # fused Adam: one kernel per step instead of several per parameter (stepped by gchgg.fast.adam_step)
+        if self.fast:
+            self.precision = resolve_precision(precision, matmul)  # "auto" -> what this machine does well
+            self.matmul = resolve_matmul(matmul, self.precision)  # the backend the layers got: "onednn" or "default"
+            use_onednn(self.loss_module, self.matmul)  # the online and the target networks
+        else:  # torch's own layers, float32
+            self.precision, self.matmul = precision, matmul
+        # fused Adam: one kernel per step (stepped by gchgg.fast.adam_step, or by its own step on the plain path)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
         self.observation_normalizer: RunningNormalizer = self.loss_module.actor.observation_normalizer
         self.goal_normalizer: RunningNormalizer = self.loss_module.actor.goal_normalizer
-        self._small_batch_actor = SmallBatchActor(self.actor)  # act's speed devices on a few rows and on one:
-        self._explore_one_row = OneRowExploration(self)  # the actor's forward and eq. 22, the same actions and draws
-        self._fused = hand_differentiated(self.loss_module, gradients, self.precision)
+        self._small_batch_actor = self._explore_one_row = self._fused = None  # the plain path's: none
+        if self.fast:
+            self._small_batch_actor = SmallBatchActor(self.actor)  # act's speed devices on a few rows and on one:
+            self._explore_one_row = OneRowExploration(self)  # the actor's forward and eq. 22, same actions and draws
+            self._fused = hand_differentiated(self.loss_module, gradients, self.precision)
         self.num_updates = 0
 
     @property
@@ -226,13 +266,16 @@ class DDPGAgent:
         """
         _check_inputs(observation, goal, self.obs_dim, self.goal_dim)
         small = self._small_batch_actor
-        action = small(observation, goal) if small.takes(observation, goal) else self.actor(observation, goal)
+        if small is not None and small.takes(observation, goal):
+            action = small(observation, goal)
+        else:
+            action = self.actor(observation, goal)
         if not explore:
             return action
         if generator is None:
             raise ValueError("act(explore=True) needs a torch.Generator: pass generator=...")
-        if action.shape[:-1] == (1,):  # the per-episode loop's one row: the speed device beside eq. 22
-            return self._explore_one_row(action, generator)
+        if self._explore_one_row is not None and action.shape[:-1] == (1,):  # the per-episode loop's one row:
+            return self._explore_one_row(action, generator)  # the speed device beside eq. 22
         return self.explore_actions(action, generator)
 
     def rollout_policy(self, generator: torch.Generator) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
@@ -241,11 +284,14 @@ class DDPGAgent:
 
         The per-episode loop acts on one row 5,000 times an iteration; this reaches the one-row speed devices
         without ``act``'s per-call checks (:func:`gchgg.fast.small_batch.one_row_policy`; ``python
-        benchmarks/iteration.py`` prints the rollout both ways). Make one per rollout, as the trainer does per chunk.
+        benchmarks/iteration.py`` prints the rollout both ways); on the plain path (``fast=False``) it is that ``act``.
+        Make one per rollout, as the trainer does per chunk.
         """
         if generator is None:
             raise ValueError("rollout_policy needs a torch.Generator for eq. 22's draws: pass generator=...")
         general = partial(self.act, explore=True, generator=generator)
+        if not self.fast:
+            return general
         return one_row_policy(self._small_batch_actor, self._explore_one_row, general, generator,
                               self.obs_dim, self.goal_dim)  # fmt: skip
 
@@ -333,6 +379,8 @@ class DDPGAgent:
         Raises:
             FloatingPointError: a loss is NaN or inf; no parameter is changed.
         """
+        if not self.fast:  # the plain path: torch's own products, IEEE subnormals
+            return self._update(batch)
         with products_in(self.precision), flush_subnormals(self.subnormals == "flush"):
             return self._update(batch)
 
@@ -355,8 +403,12 @@ class DDPGAgent:
             # the actor loss sees the critic's weights detached and the critic loss does not involve
             # the online actor: one backward gives each network its own gradient
             (loss_actor + loss_value).backward()
-        adam_step(self.actor_optimizer)  # = optimizer.step(), bit for bit, without its per-call bookkeeping
-        adam_step(self.critic_optimizer)
+        if self.fast:
+            adam_step(self.actor_optimizer)  # = optimizer.step(), bit for bit, without its per-call bookkeeping
+            adam_step(self.critic_optimizer)
+        else:
+            self.actor_optimizer.step()
+            self.critic_optimizer.step()
         self.num_updates += 1
         if self.num_updates % self.target_update_every == 0:
             self.loss_module.update_targets(self.polyak)

@@ -260,6 +260,6 @@ def load_policy(state: dict[str, Any], matmul: str = "auto") -> GoalConditionedA
         h["obs_dim"], h["goal_dim"], h["action_dim"], tuple(h["hidden"]),
         norm_std_min=h["norm_std_min"], norm_clip=h["norm_clip"],
     )  # fmt: skip
-    module = use_onednn(actor.module, matmul)
+    module = actor.module if matmul == "default" else use_onednn(actor.module, matmul)  # default: torch's own layers
     module.load_state_dict(state["actor"])
     return module.eval()

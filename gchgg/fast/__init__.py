@@ -11,6 +11,7 @@
   (:mod:`~gchgg.fast.shortlist`);
 - :mod:`~gchgg.fast.storage`: a replay storage that reads a sampled batch field by field.
 
+A run's ``plain=true`` (the agent's, the samplers' and the replay buffer's ``fast=False``) calls none of them.
 Nothing here imports the algorithm (:mod:`gchgg.ddpg`, :mod:`gchgg.samplers`, ...): the algorithm
 imports the device, and a test holds the two equal.
 """

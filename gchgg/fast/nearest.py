@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from gchgg.common.validation import check_number
+from gchgg.common.validation import check_distances, check_number
 from gchgg.fast.shortlist import Shortlist
 
 __all__ = [
@@ -467,20 +467,3 @@ def _sort_order(primary: torch.Tensor, secondary: torch.Tensor) -> torch.Tensor:
 
     keys = (monotone(primary) << 32) | (monotone(secondary) & 0xFFFFFFFF)
     return torch.from_numpy(np.argsort(keys, -1))
-
-
-
-def check_distances(distance: torch.Tensor, name: str, shape: torch.Size | tuple | None = None) -> torch.Tensor:
-    """``distance`` as a float32 tensor (a metric returning another dtype, e.g. float64, is cast); a
-    ``ValueError`` naming the metric if it holds NaN or, when ``shape`` is given, has another shape."""
-    distance = torch.as_tensor(distance)
-    if shape is not None and distance.shape != torch.Size(shape):
-        raise ValueError(
-            f"the {name} must return one distance per pair of goals, shape {tuple(shape)} here "
-            f"(goals [..., d] -> [...]), got shape {tuple(distance.shape)}"
-        )
-    if distance.dtype != torch.float32:
-        distance = distance.to(torch.float32)
-    if bool(torch.isnan(distance).any()):
-        raise ValueError(f"the {name} returned NaN distances; goals must be finite")
-    return distance

@@ -11,8 +11,8 @@ updates with and without them.
 
 :func:`flush_subnormals` turns on the CPU's flush-to-zero and denormals-are-zero modes
 (:func:`torch.set_flush_denormal`) for a block: a subnormal result becomes 0, and a subnormal input
-counts as 0. The agent wraps its update in it (``subnormals=flush``, the default). What it changes are
-values that small: a decayed moment m becomes 0, where it would have moved a weight by at most
+counts as 0. The agent wraps its update in it (``subnormals=flush``, what the default ``auto`` resolves to).
+What it changes are values that small: a decayed moment m becomes 0, where it would have moved a weight by at most
 lr·m/ε (ε: Adam's epsilon), far below the rounding unit of any weight that is not itself nearly 0. The
 networks therefore come out the same, bit for bit, as without it (``tests/test_subnormal.py`` checks
 this over updates on moments made subnormal; the benchmark over a run's own updates). Acting,
@@ -30,9 +30,10 @@ import torch
 
 __all__ = ["SUBNORMALS", "flush_subnormals", "flushing", "subnormal_share"]
 
-SUBNORMALS = ("flush", "keep")
-"""The ``subnormals`` setting: ``flush`` the update's subnormal results and inputs to zero (the default),
-or ``keep`` them (IEEE arithmetic throughout)."""
+SUBNORMALS = ("auto", "flush", "keep")
+"""The ``subnormals`` setting: ``flush`` the update's subnormal results and inputs to zero, or ``keep`` them
+(IEEE arithmetic throughout); ``auto`` (the default) is ``flush`` wherever the agent runs its speed devices
+and ``keep`` on its plain path (:class:`gchgg.ddpg.agent.DDPGAgent`'s ``fast=False``)."""
 
 _SMALLEST = 5e-324  # the smallest subnormal double: 0 once denormals-are-zero is on
 

@@ -1,8 +1,9 @@
 """Builders of the training pipeline's parts from explicit arguments (no Hydra config is passed in).
 
 Each ``make_*`` function turns a few plain settings into one part — the goal metric, the trade-off
-schedule, the replay buffer with its sampler, the HER transform, the goal generator. A builder takes
-every setting explicitly and checks none: a run's settings are checked once, before anything is built,
+schedule, the replay buffer with its sampler, the HER transform, the goal generator. ``fast`` (the run's
+``plain`` setting, negated) chooses the speed devices of the sampler and the buffer or their plain paths.
+A builder takes every setting explicitly and checks none: a run's settings are checked once, before anything is built,
 by :func:`gchgg.run.config.check` (whose choice lists name the ``kind`` each builder takes), and each
 part checks its own arguments when it is built. A ``kind`` that is not one raises a ``KeyError``.
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import torch
-from torchrl.data import TensorDictReplayBuffer
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs.transforms import Compose
 
 from gchgg.fast.storage import FieldStorage
@@ -59,9 +60,11 @@ def make_tradeoff(kind: str, **settings):
     return TRADEOFFS[kind](**settings)
 
 
-def make_sampler(kind: str, metric, tradeoff, **settings):
+def make_sampler(kind: str, metric, tradeoff, *, fast: bool, **settings):
     """The replay sampler ``kind`` with its own settings: uniform, EBP, graph curriculum (Alg. 1, candidates
-    drawn with EBP) or CHER (``pool_size``).
+    drawn with EBP) or CHER (``pool_size``). ``fast``: EBP and the curriculum on their speed devices, or on
+    their plain paths (the same batches: :class:`~gchgg.samplers.GraphCurriculumSampler`'s "Speed"); uniform
+    sampling (TorchRL's) and CHER have none.
 
     For the curriculum: ``num_candidates`` (K), ``proximity`` (a key of :data:`PROXIMITY_KEYS`) says which
     two stored goals F_prox measures, ``diversity_of`` (``"goal"`` or ``"achieved"``) whose nearest
@@ -84,10 +87,11 @@ def make_sampler(kind: str, metric, tradeoff, **settings):
             energy_key="energy",
             on_write="redraw",  # every batch from the buffer as it is when sampled (the recorded runs)
             diagnostics=True,  # metrics.csv's diversity_spread, proximity_spread and diversity_decided
+            fast=fast,
         )
     if kind == "cher":
         return CherSampler(metric, pool_size=settings["pool_size"], tradeoff=tradeoff)
-    return {"uniform": lambda: None, "ebp": lambda: EnergySampler("energy")}[kind]()  # None: TorchRL's RandomSampler
+    return {"uniform": lambda: None, "ebp": lambda: EnergySampler("energy", fast=fast)}[kind]()  # None: RandomSampler
 
 
 def make_replay_buffer(
@@ -97,16 +101,19 @@ def make_replay_buffer(
     *,
     batch_size: int,
     generator: torch.Generator,
+    fast: bool,
 ) -> TensorDictReplayBuffer:
     """An episodic FIFO of relabelled transitions: ``capacity_episodes`` whole episodes.
 
     Every episode occupies ``transitions_per_episode`` = (k+1)·T consecutive rows, so the FIFO
     drops whole episodes. Sampled batches get ``("next", "desired_goal")`` back (:class:`GoalToNext`);
-    their rows are read field by field (:class:`gchgg.fast.storage.FieldStorage`).
+    their rows are read field by field (``fast``: :class:`gchgg.fast.storage.FieldStorage`) or by TorchRL's
+    ``LazyTensorStorage`` itself (the same batches).
     """
     kwargs = {} if sampler is None else {"sampler": sampler}
+    storage = (FieldStorage if fast else LazyTensorStorage)(capacity_episodes * transitions_per_episode)
     return TensorDictReplayBuffer(
-        storage=FieldStorage(capacity_episodes * transitions_per_episode),
+        storage=storage,
         batch_size=batch_size,
         transform=GoalToNext(),
         generator=generator,

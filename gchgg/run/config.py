@@ -63,7 +63,9 @@ NORMALIZER_SOURCES = ("sampled", "collected")  # agent.normalizer_source
 MATMUL_BACKENDS = ("auto", "onednn", "default")  # matmul (gchgg.fast.linear.MATMUL_BACKENDS)
 PRECISIONS = ("auto", "float32", "bfloat16")  # precision (gchgg.fast.linear.PRECISIONS)
 GRADIENTS = ("auto", "fused", "compiled", "autograd")  # gradients (the agent's GRADIENTS)
-SUBNORMALS = ("flush", "keep")  # subnormals (gchgg.fast.subnormal.SUBNORMALS)
+SUBNORMALS = ("auto", "flush", "keep")  # subnormals (gchgg.fast.subnormal.SUBNORMALS)
+PLAIN = {"matmul": "default", "precision": "float32", "gradients": "autograd", "subnormals": "keep"}
+"""What ``plain=true`` sets (the agent's ``fast=False``: gchgg.ddpg.agent.PLAIN); each one's ``auto`` resolves to it."""
 BACKGROUND = ("auto", True, False)  # eval.background (gchgg.run.evaluator.resolve_background)
 
 
@@ -352,7 +354,13 @@ class RunConfig:
     matmul: str = "auto"  # the wide layers' products: auto (oneDNN for bfloat16, or where faster) | onednn | default
     precision: str = "auto"  # their dtype in updates: auto (bfloat16 where native) | float32 | bfloat16
     gradients: str = "auto"  # of the updates: auto (by hand wherever the networks allow) | fused | compiled | autograd
-    subnormals: str = "flush"  # in updates: flush (to zero: fast, same networks; gchgg.fast.subnormal) | keep
+    # in updates: flush (to zero: fast, same networks; gchgg.fast.subnormal) | keep | auto (flush; keep if plain)
+    subnormals: str = "auto"
+    # the algorithm alone, no speed device of gchgg.fast: float32 products on torch's matmul, autograd, subnormals
+    # kept, the samplers' plain paths, TorchRL's LazyTensorStorage, the actor module and eq. 22 on every batch,
+    # torch.optim.Adam.step. The same numbers (tests/test_plain.py); slower. A contrary matmul, precision,
+    # gradients or subnormals is refused (auto resolves to the plain choice: PLAIN)
+    plain: bool = False
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     graph: GraphConfig | None = None  # the graph=default group; null where no metric is the graph
@@ -384,6 +392,7 @@ class RunConfig:
         check_choice("precision", self.precision, PRECISIONS)
         check_choice("gradients", self.gradients, GRADIENTS)
         check_choice("subnormals", self.subnormals, SUBNORMALS)
+        check_choice("plain", self.plain, (False, True))
 
 
 def register() -> None:
@@ -404,6 +413,12 @@ def check(cfg: DictConfig | RunConfig) -> RunConfig:
     if not isinstance(run, RunConfig):
         raise TypeError(f"a training config is composed from conf/config.yaml (base_config), got {type(run).__name__}")
     run.check()
+    if run.plain:  # the plain path fixes how the products, gradients and subnormals are computed
+        for name, value in PLAIN.items():
+            if getattr(run, name) not in ("auto", value):
+                raise ValueError(f"plain=true runs the algorithm alone, with {name}={value}, but {name}="
+                                 f"{getattr(run, name)} was set: drop {name} (auto is {value} under plain=true), "
+                                 "or set plain=false")
     algo = run.algo
     if run.train.episodes < 2 and algo.goal_generator == "hgg":
         raise ValueError(f"train.episodes must be >= 2 with a goal generator, got {run.train.episodes}")

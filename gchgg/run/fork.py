@@ -22,8 +22,10 @@ nothing (but its length, logging and the like) continues exactly as ``resume=tru
 two forks of a pair (same checkpoint, same new seed) draw the same targets at the fork point.
 
 **May differ**: :data:`MAY_DIFFER`. How the products are computed (``threads``, ``matmul``,
-``precision``, ``gradients``, ``subnormals``) may: the carried parameters are float32 whatever the
-products' dtype, and flushed subnormals leave them as they are. The metric (``algo.metric``,
+``precision``, ``gradients``, ``subnormals``, and ``plain``, which fixes them and runs the algorithm
+without its speed devices) may: the carried parameters are float32 whatever the products' dtype,
+flushed subnormals leave them as they are, and the sampler's state and the stored rows load into
+either path (a fast sampler's candidates drawn ahead are drawn afresh on the plain path). The metric (``algo.metric``,
 ``graph.*``) and HGG's parameters (``env.stop_threshold``, ``hgg.c``, ``hgg.L``) may, because no
 carried state depends on them: the pool holds raw achieved-goal trajectories, HGG's ``max_dis`` is
 recomputed with the fork's metric, and the stop flag is carried as it is (a stop
@@ -65,7 +67,7 @@ log = logging.getLogger(__name__)
 RECORD = "fork.yaml"
 SOURCE_CONFIG = "config.yaml"
 MAY_DIFFER = (
-    "seed", "resume", "init_from", "threads", "matmul", "precision", "gradients", "subnormals",
+    "seed", "resume", "init_from", "threads", "matmul", "precision", "gradients", "subnormals", "plain",
     "algo.name", "algo.sampler", "algo.metric", "graph", "graph.*",
     "curriculum", "curriculum.*", "tradeoff", "tradeoff.*", "cher", "cher.*",  # a section, or null where unread
     "env.stop_threshold", "hgg.c", "hgg.L",

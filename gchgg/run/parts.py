@@ -122,10 +122,11 @@ def make_parts(cfg: DictConfig | config.RunConfig) -> Parts:
                        diversity_of=curriculum.diversity_of, diversity_metric=diversity_metric, scale=curriculum.scale)
     elif algo.sampler == "cher":
         options = dict(pool_size=run.cher.pool_size)
-    sampler = make_sampler(algo.sampler, metric, tradeoff, **options)
+    fast = not run.plain  # the speed devices, or the algorithm alone (each part's own plain path)
+    sampler = make_sampler(algo.sampler, metric, tradeoff, fast=fast, **options)
     copies = run.her.k + 1
     buffer = make_replay_buffer(run.buffer.episodes, copies * steps, sampler, batch_size=run.train.batch_size,
-                                generator=torch.Generator().manual_seed(seeds["buffer"]))
+                                generator=torch.Generator().manual_seed(seeds["buffer"]), fast=fast)
     relabel = make_relabel(
         partial(envs.reward, threshold=run.env.threshold), k=run.her.k, strategy=run.her.strategy,
         generator=torch.Generator().manual_seed(seeds["her"]),
@@ -133,7 +134,7 @@ def make_parts(cfg: DictConfig | config.RunConfig) -> Parts:
     )  # fmt: skip
     agent = DDPGAgent(env.obs_dim, 3, env.action_dim, ddpg_config(run.agent),
                       generator=torch.Generator().manual_seed(seeds["agent"]), matmul=run.matmul,
-                      precision=run.precision, gradients=run.gradients, subnormals=run.subnormals)
+                      precision=run.precision, gradients=run.gradients, subnormals=run.subnormals, fast=fast)
     goal_generator = None
     if algo.goal_generator != "none":
         goal_generator = make_goal_generator(

@@ -13,10 +13,9 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from gchgg.fast.linear import resolve_matmul, resolve_precision
 from gchgg.run import loggers
 
-__all__ = ["open_loggers", "requeued", "startup_record", "tracker_names", "versions"]
+__all__ = ["open_loggers", "requeued", "resolved_settings", "startup_record", "tracker_names", "versions"]
 
 REPOSITORY = Path(__file__).resolve().parents[2]  # the checkout the code runs from
 
@@ -33,15 +32,21 @@ def tracker_names(cfg: DictConfig, run_dir: Path) -> tuple[str, str, Path]:
     return name, group, store
 
 
-def open_loggers(cfg: DictConfig, run_dir: Path) -> loggers.RunLoggers:
-    """The trackers ``logging.backend`` names (:mod:`gchgg.run.loggers`), with the resolved settings, the
-    package versions and the git commit as hyperparameters."""
+def resolved_settings(agent) -> dict[str, str]:
+    """How the agent (:class:`gchgg.ddpg.agent.DDPGAgent`) resolved the settings whose ``auto`` depends on the
+    machine or on ``plain``: ``matmul``, ``precision``, ``gradients`` and ``subnormals``."""
+    return {name: getattr(agent, name) for name in ("matmul", "precision", "gradients", "subnormals")}
+
+
+def open_loggers(cfg: DictConfig, run_dir: Path, resolved: dict[str, str]) -> loggers.RunLoggers:
+    """The trackers ``logging.backend`` names (:mod:`gchgg.run.loggers`), with the settings, those the agent
+    resolved (``resolved``: :func:`resolved_settings`, as ``<setting>_resolved``), the package versions and the
+    git commit as hyperparameters."""
     name, group, store = tracker_names(cfg, run_dir)
     hparams = {
         **OmegaConf.to_container(cfg, resolve=True),
         "versions": versions(),
-        "matmul_resolved": resolve_matmul(cfg.matmul, resolve_precision(cfg.precision, cfg.matmul)),
-        "precision_resolved": resolve_precision(cfg.precision, cfg.matmul),
+        **{f"{setting}_resolved": value for setting, value in resolved.items()},
     }
     settings = cfg.logging
     return loggers.make_loggers(
@@ -72,17 +77,15 @@ def versions() -> dict[str, str]:
     return out
 
 
-def startup_record(cfg: DictConfig, gradients: str | None = None) -> str:
-    """The run's resolved settings and the installed versions, as logged once at start-up
-    (``gradients``: the agent's resolved ``gradients`` setting, :attr:`gchgg.ddpg.agent.DDPGAgent.gradients`)."""
+def startup_record(cfg: DictConfig, resolved: dict[str, str]) -> str:
+    """The run's resolved settings and the installed versions, as logged once at start-up: ``plain``, then each
+    setting the agent resolved (``resolved``: :func:`resolved_settings`) as ``setting: value -> resolved``."""
     packages = ", ".join(f"{k} {v}" for k, v in versions().items())
-    matmul, precision = cfg.matmul, cfg.precision
-    resolved = f"gradients: {cfg.get('gradients', 'auto')} -> {gradients}\n" if gradients else ""
-    return (
-        f"versions: {packages}\nmatmul: {matmul} -> {resolve_matmul(matmul, resolve_precision(precision, matmul))}\n"
-        f"precision: {precision} -> {resolve_precision(precision, matmul)}\n{resolved}"
-        f"resolved config:\n{OmegaConf.to_yaml(cfg, resolve=True)}"
-    )
+    plain = cfg.get("plain", False)
+    alone = " (the algorithm alone: no speed device of gchgg.fast)" if plain else ""
+    lines = [f"versions: {packages}", f"plain: {str(plain).lower()}{alone}"]
+    lines += [f"{setting}: {cfg.get(setting, 'auto')} -> {value}" for setting, value in resolved.items()]
+    return "\n".join(lines) + f"\nresolved config:\n{OmegaConf.to_yaml(cfg, resolve=True)}"
 
 
 def requeued() -> bool:

@@ -12,8 +12,7 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
-from gchgg.common.validation import check_number
-from gchgg.fast.nearest import check_distances
+from gchgg.common.validation import check_distances, check_number
 from gchgg.graph import EuclideanMetric, Metric
 from gchgg.samplers._storage import (
     check_sampleable,

@@ -2,6 +2,7 @@
 
 Its speed devices sit apart, in :mod:`gchgg.fast`: the candidates drawn ahead and the per-row
 caches in :mod:`gchgg.fast.candidates`, F_div's nearest-neighbour search in :mod:`gchgg.fast.nearest`.
+With ``fast=False`` the sampler calls none of them (nor EBP's, :class:`~gchgg.samplers.EnergySampler`).
 """
 
 from __future__ import annotations
@@ -15,9 +16,9 @@ from tensordict import NestedKey
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
-from gchgg.common.validation import check_choice, check_number
+from gchgg.common.validation import check_choice, check_distances, check_number
 from gchgg.fast.candidates import ON_WRITE, CandidatePool
-from gchgg.fast.nearest import NearestNeighbours, check_distances
+from gchgg.fast.nearest import NearestNeighbours
 from gchgg.graph import Metric
 from gchgg.samplers._storage import (
     check_goal_rows,
@@ -73,8 +74,9 @@ class GraphCurriculumSampler(Sampler):
     Speed. ``fast=True`` (default) runs step 1 on :class:`~gchgg.fast.candidates.CandidatePool`: the
     candidates of the next ``draw_ahead`` samples drawn and scored in one go, per-row caches
     (:attr:`cache_bytes`), exact nearest neighbours through a Euclidean shortlist. ``fast=False`` runs
-    it as written in :meth:`candidates` (all pairs, goals read at every sample): the same indices and
-    info bit for bit wherever no candidate drawn ahead goes unused (``draw_ahead=1``, or no writes).
+    it as written in :meth:`candidates` (all pairs, goals read at every sample; EBP's plain path too) and
+    calls no speed device: the same indices and info bit for bit wherever no candidate drawn ahead goes
+    unused (``draw_ahead=1``, or no write before a pool is used up).
 
     Args:
         metric: a :class:`~gchgg.graph.Metric` (``GoalGraph`` for GC-HGG, ``EuclideanMetric`` for the
@@ -90,7 +92,8 @@ class GraphCurriculumSampler(Sampler):
         scale: ``"raw"`` (default) or ``"standardized"``, see "Scale".
         energy_key: stored EBP energy; ``None`` (default) draws candidates uniformly.
         neighbours: shortlist length (≥ 1) of the nearest-neighbour search, ``None`` for all pairs, or
-            ``"auto"`` (default; :class:`~gchgg.fast.nearest.NearestNeighbours`). The batches do not depend on it.
+            ``"auto"`` (default; :class:`~gchgg.fast.nearest.NearestNeighbours`: 3 with a lattice, 1 without).
+            The batches do not depend on it; the plain path keeps it for its state only.
         unreachable_distance: metres an unreachable goal counts in F_prox; ``None`` (default): see above.
         draw_ahead, on_write: samples whose candidates are drawn and scored together (≥ 1, default 8);
             ``"keep"`` (default) or ``"redraw"`` them at a write (:mod:`gchgg.fast.candidates`).
@@ -138,9 +141,15 @@ class GraphCurriculumSampler(Sampler):
         self.diversity_key = goal_key if diversity_key is None else diversity_key
         self.scale, self.energy_key, self.unreachable_distance = scale, energy_key, unreachable_distance
         self.draw_ahead, self.on_write, self.diagnostics = draw_ahead, on_write, bool(diagnostics)
-        self._energy = EnergySampler(energy_key) if energy_key is not None else None
-        self._nearest = NearestNeighbours(self.diversity_metric, neighbours)
-        self._pool = CandidatePool(self._nearest) if fast else None  # the fast path of step 1
+        self._energy = EnergySampler(energy_key, fast=fast) if energy_key is not None else None
+        lattice = self.diversity_metric.lattice  # F_div's goals: the lattice's vertices, of its dimension
+        self._snaps, self._dim = lattice is not None, None if lattice is None else len(lattice.field[0])
+        if fast:  # the fast path of step 1
+            self._nearest = NearestNeighbours(self.diversity_metric, neighbours)
+            self._pool = CandidatePool(self._nearest)
+        else:  # the plain path reads all pairs; the setting is checked and kept (state_dict), as the engine keeps it
+            self._nearest = self._pool = None
+            self._neighbours = _neighbours(neighbours, self._snaps)
 
     @one_thread
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
@@ -170,7 +179,7 @@ class GraphCurriculumSampler(Sampler):
         k = self.num_candidates
         index = self.draw_candidates(storage, n, (k, b), rng)
         goals, to_target = self.read_rows(storage, index.view(-1))
-        if not self._nearest.snaps:  # F_div reads float32 goals (a lattice metric: the stored goals' vertices)
+        if not self._snaps:  # F_div reads float32 goals (a lattice metric: the stored goals' vertices)
             goals = goals.to(torch.float32)
         goals = goals.view(k, b, -1)
         pairs = self.diversity_metric.distance(goals.unsqueeze(2), goals.unsqueeze(1))  # [K, B, B]
@@ -192,11 +201,11 @@ class GraphCurriculumSampler(Sampler):
         goals = self._goals(storage, self.goal_key, rows, None if lattice is None else len(lattice.field[0]),
                             "the metric's lattice")
         targets = self._goals(storage, self.target_key, rows, goals.shape[-1], repr(self.goal_key))
-        if self.diversity_key == self.goal_key and self._nearest.dim in (None, goals.shape[-1]):
+        dim = self._dim if self._nearest is None else self._nearest.dim  # the engine also learns d from goals
+        if self.diversity_key == self.goal_key and dim in (None, goals.shape[-1]):
             diverse = goals
         else:
-            diverse = self._goals(storage, self.diversity_key, rows, self._nearest.dim,
-                                  "the diversity metric's lattice")
+            diverse = self._goals(storage, self.diversity_key, rows, dim, "the diversity metric's lattice")
         return diverse, check_distances(self.metric.distance(goals, targets), "metric", (len(rows),))
 
     def _goals(self, storage: Storage, key: NestedKey, rows: torch.Tensor, dim: int | None, like: str):
@@ -227,11 +236,14 @@ class GraphCurriculumSampler(Sampler):
     @property
     def neighbours(self) -> int | None:
         """Shortlist length of the nearest-neighbour search (``None``: all pairs)."""
-        return self._nearest.neighbours
+        return self._neighbours if self._nearest is None else self._nearest.neighbours
 
     @neighbours.setter
     def neighbours(self, value: int | None) -> None:
-        self._nearest.neighbours = value
+        if self._nearest is None:
+            self._neighbours = value
+        else:
+            self._nearest.neighbours = value
 
     def stop_curriculum(self) -> None:
         """From now on one candidate per sample (EBP or uniform), as GC-HGG does once HGG's stop condition
@@ -310,6 +322,16 @@ def curriculum_objective(
     else:
         check_choice("scale", scale, SCALES)
     return diversity, tradeoff * proximity
+
+
+def _neighbours(neighbours: int | str | None, lattice: bool) -> int | None:
+    """The ``neighbours`` setting checked and ``"auto"`` resolved as :class:`~gchgg.fast.nearest.NearestNeighbours`
+    does (3 with a lattice, 1 without; ``tests/test_plain.py`` holds the two equal), for the plain path's state."""
+    if neighbours == "auto":
+        return 3 if lattice else 1
+    if neighbours is not None:
+        check_number('neighbours (or None: all pairs, or "auto")', neighbours, integer=True, low=1)
+    return neighbours
 
 
 def _spread(x: torch.Tensor) -> torch.Tensor:

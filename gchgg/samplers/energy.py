@@ -112,6 +112,9 @@ class EnergySampler(Sampler):
         epsilon: added to every energy (≥ 0), giving zero-energy episodes a chance. Default 0: as in
             the original, they are never drawn while some episode has energy; if all energies are 0
             the draw is uniform.
+        fast: keep the per-row energy copy above, its rows read again as written
+            (:class:`gchgg.fast.rows.WrittenRows`; default), or ``False``: the plain path, which reads every
+            stored energy again at the first sample after a write and calls no speed device. The same draws.
 
     Example:
         >>> import torch
@@ -124,14 +127,15 @@ class EnergySampler(Sampler):
         [0, 254, 746]
     """
 
-    def __init__(self, energy_key: NestedKey = "energy", epsilon: float = 0.0) -> None:
+    def __init__(self, energy_key: NestedKey = "energy", epsilon: float = 0.0, *, fast: bool = True) -> None:
         check_number("epsilon", epsilon, low=0)
         self.energy_key = energy_key
         self.epsilon = float(epsilon)
         self._energy: torch.Tensor | None = None  # float64 energy + epsilon per stored row, valid as _written says
-        self._written = WrittenRows()
+        self._written = WrittenRows() if fast else None  # None: the plain path
         self._cached_runs: _Runs | None = None  # valid while self._written.current(len(storage))
         self._starts: torch.Tensor | None = None  # first row of every run of equal energies (_Runs.starts)
+        self._plain: tuple[int, _Runs | None] | None = None  # the plain path's (len(storage), runs), until a write
 
     @property
     def cache_bytes(self) -> int:
@@ -171,6 +175,10 @@ class EnergySampler(Sampler):
     def _runs(self, storage: Storage, n: int) -> _Runs | None:
         """The drawable runs (``None`` if no row has energy), rebuilt after writes from the rows' energies,
         of which only the rows written since the last rebuild are read from the storage."""
+        if self._written is None:  # the plain path: every stored energy read again after a write
+            if self._plain is None or self._plain[0] != n:
+                self._plain = (n, _Runs.of(self._read(storage, None, n)))
+            return self._plain[1]
         if self._written.current(n):
             return self._cached_runs
         rows = self._written.take(n, 0 if self._energy is None else len(self._energy))
@@ -198,19 +206,23 @@ class EnergySampler(Sampler):
             raise ValueError(f"energies under {self.energy_key!r} must be finite and >= 0")
         return energy + self.epsilon
 
-    # Writes mark the rows whose energies are read again at the next rebuild of the runs.
+    # Writes mark the rows whose energies are read again at the next rebuild of the runs (the plain path: all).
     def extend(self, index: torch.Tensor) -> None:
-        self._written.mark(index)
+        self.mark_update(index)
 
     def add(self, index: int) -> None:
-        self._written.mark(index)
+        self.mark_update(index)
 
     def mark_update(self, index, *, storage: Storage | None = None) -> None:
-        self._written.mark(index)
+        if self._written is None:
+            self._plain = None
+        else:
+            self._written.mark(index)
 
     def _empty(self) -> None:
-        self._energy = self._cached_runs = self._starts = None
-        self._written.reset()
+        self._energy = self._cached_runs = self._starts = self._plain = None
+        if self._written is not None:
+            self._written.reset()
 
     def state_dict(self) -> dict[str, Any]:
         return OrderedDict(energy_key=self.energy_key, epsilon=self.epsilon)
@@ -219,7 +231,9 @@ class EnergySampler(Sampler):
         key = state_dict["energy_key"]
         self.energy_key = tuple(key) if isinstance(key, list) else key
         self.epsilon = float(state_dict["epsilon"])
-        self._written.reset()
+        self._plain = None
+        if self._written is not None:
+            self._written.reset()
 
     def dumps(self, path) -> None:
         dump_state(self.state_dict(), path)
