@@ -167,8 +167,7 @@ class DDPGAgent:
             ``"float32"`` (default: the math as written), ``"bfloat16"`` (oneDNN's native products on CPUs with
             AVX-512 BF16 or AMX) or ``"auto"`` (bfloat16 where native, training's default), resolved into
             :attr:`precision`. It changes the numbers (rounding), so runs record it; acting stays float32.
-        gradients: how :meth:`update` computes the gradients, one of :data:`GRADIENTS`, resolved into
-            :attr:`gradients`. Speed only: the gradients are autograd's.
+        gradients: how :meth:`update` gets autograd's gradients, one of :data:`GRADIENTS` (:attr:`gradients`).
         subnormals: ``"flush"``: :meth:`update` flushes subnormal floats to zero, the same networks bit for bit
             (:mod:`gchgg.fast.subnormal`); ``"keep"``: IEEE subnormals; ``"auto"`` (default): ``flush``, or
             ``keep`` with ``fast=False``.
@@ -176,9 +175,8 @@ class DDPGAgent:
             ``False``: the plain path, which calls none (:func:`plain_settings`): the same actions and draws.
         **overrides: fields of :class:`DDPGConfig` to change (``hidden=(32,)``).
 
-    The batch given to :meth:`update` holds ``observation [B, obs_dim]``, ``desired_goal [B, goal_dim]``,
-    ``action [B, A]``, ``("next", "observation")`` and ``("next", "reward") [B, 1]``; other keys are
-    ignored (in particular ``done``: there is no done mask).
+    :meth:`update`'s batch: ``observation``, ``desired_goal``, ``action``, ``("next", "observation")``, ``("next",
+    "reward") [B, 1]``; other keys are ignored (``done`` too: there is no done mask).
     """
 
     def __init__(self, obs_dim: int, goal_dim: int, action_dim: int, config: DDPGConfig | None = None, *,
@@ -195,11 +193,9 @@ class DDPGAgent:
             matmul, precision, gradients, subnormals = plain_settings(matmul, precision, gradients, subnormals)
         self.subnormals = "flush" if subnormals == "auto" else subnormals
         self.obs_dim, self.goal_dim, self.action_dim = int(obs_dim), int(goal_dim), int(action_dim)
-        self.gamma = float(config.gamma)
-        self.polyak = float(config.polyak)
+        self.gamma, self.polyak = float(config.gamma), float(config.polyak)
         self.target_update_every = int(config.target_update_every)
-        self.random_eps = float(config.random_eps)
-        self.noise_std = float(config.noise_std)
+        self.random_eps, self.noise_std = float(config.random_eps), float(config.noise_std)
         self.hparams = dict(obs_dim=obs_dim, goal_dim=goal_dim, action_dim=action_dim, **asdict(config))
 
         actor, critic = make_ddpg_networks(
