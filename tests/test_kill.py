@@ -44,7 +44,7 @@ from pathlib import Path
 from test_train import config
 from gchgg import train
 from gchgg.ddpg import agent
-from gchgg.run import checkpoint
+from gchgg.common import files
 where, n, run_dir, overrides = sys.argv[1], int(sys.argv[2]), Path(sys.argv[3]), sys.argv[4:]
 calls = [0]
 
@@ -64,7 +64,7 @@ elif where == "rename":  # inside a checkpoint: a file written, not yet renamed 
             return getattr(os, name)
     proxy = Os()
     proxy.replace = killing(os.replace)
-    checkpoint.os = proxy
+    files.os = proxy  # the atomic writer's rename (gchgg.common.files)
 train.run(config(overrides), run_dir)
 """
 
