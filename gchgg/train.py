@@ -45,6 +45,7 @@ from tqdm.auto import tqdm  # noqa: E402
 import envs  # noqa: E402
 from gchgg.run import checkpoint, config, fork, metrics  # noqa: E402
 from gchgg.run.evaluator import Evaluations, EvaluationSchedule, resolve_background  # noqa: E402
+from gchgg.run.lock import RunLock  # noqa: E402
 from gchgg.run.parts import Parts, make_parts  # noqa: E402
 from gchgg.run.replay_log import ReplayLog  # noqa: E402
 from gchgg.run.rollout import collect  # noqa: E402
@@ -265,8 +266,19 @@ def run(cfg: DictConfig, run_dir: Path, overrides: Sequence[str] = ()) -> list[d
     from that run's checkpoint (:mod:`gchgg.run.fork`: its metrics rows, then this run's); once it has
     its own checkpoint, ``resume=true`` continues it from there. At the end, and on Ctrl-C, it prints
     what it made (:func:`gchgg.run.summary.summary`; ``overrides``: the command line's, for the resume
-    command it prints)."""
+    command it prints).
+
+    The folder is locked for the run's life (:mod:`gchgg.run.lock`) before anything in it is read or
+    written, and let go however the run ends: a second process on it is refused at once
+    (:class:`gchgg.run.lock.RunFolderLocked`, naming the holder's pid and host); a lock left by a killed
+    run is taken over, with a warning in the log. A fork takes no lock on its ``init_from`` folder."""
     run_dir.mkdir(parents=True, exist_ok=True)
+    with RunLock(run_dir):
+        return _run(cfg, run_dir, overrides)
+
+
+def _run(cfg: DictConfig, run_dir: Path, overrides: Sequence[str]) -> list[dict[str, float]]:
+    """:func:`run` in its locked folder."""
     path = run_dir / CHECKPOINT
     resume = bool(cfg.resume) or requeued()
     if path.exists() and not resume:
