@@ -3,6 +3,24 @@
 Its speed devices sit apart, in :mod:`gchgg.fast`: the candidates drawn ahead and the per-row
 caches in :mod:`gchgg.fast.candidates`, F_div's nearest-neighbour search in :mod:`gchgg.fast.nearest`.
 With ``fast=False`` the sampler calls none of them (nor EBP's, :class:`~gchgg.samplers.EnergySampler`).
+
+In a plain TorchRL buffer:
+
+    >>> from tensordict import TensorDict
+    >>> from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+    >>> from gchgg.graph import EuclideanMetric
+    >>> g = torch.Generator().manual_seed(0)
+    >>> goals = torch.rand(1000, 3, generator=g)
+    >>> transitions = TensorDict({"desired_goal": goals, "task_goal": torch.zeros(1000, 3)}, [1000])
+    >>> sampler = GraphCurriculumSampler(EuclideanMetric(), num_candidates=8, tradeoff=10.0)
+    >>> buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(1000), sampler=sampler, batch_size=64,
+    ...                                 generator=g)
+    >>> _ = buffer.extend(transitions)
+    >>> batch = buffer.sample()
+    >>> batch["tradeoff"][0].item(), "diversity" in batch and "proximity" in batch
+    (10.0, True)
+    >>> bool(batch["desired_goal"].norm(dim=-1).mean() < goals.norm(dim=-1).mean())  # nearer its targets
+    True
 """
 
 from __future__ import annotations
@@ -99,23 +117,6 @@ class GraphCurriculumSampler(Sampler):
             ``"keep"`` (default) or ``"redraw"`` them at a write (:mod:`gchgg.fast.candidates`).
         diagnostics: also return the choice's diagnostics in ``info``. Default ``False``.
         fast: step 1 on the fast path (default) or the plain one, see "Speed".
-
-    Example:
-        >>> from tensordict import TensorDict
-        >>> from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
-        >>> from gchgg.graph import EuclideanMetric
-        >>> g = torch.Generator().manual_seed(0)
-        >>> goals = torch.rand(1000, 3, generator=g)
-        >>> transitions = TensorDict({"desired_goal": goals, "task_goal": torch.zeros(1000, 3)}, [1000])
-        >>> sampler = GraphCurriculumSampler(EuclideanMetric(), num_candidates=8, tradeoff=10.0)
-        >>> buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(1000), sampler=sampler, batch_size=64,
-        ...                                 generator=g)
-        >>> _ = buffer.extend(transitions)
-        >>> batch = buffer.sample()
-        >>> batch["tradeoff"][0].item(), "diversity" in batch and "proximity" in batch
-        (10.0, True)
-        >>> bool(batch["desired_goal"].norm(dim=-1).mean() < goals.norm(dim=-1).mean())  # nearer its targets
-        True
     """
 
     def __init__(
