@@ -43,6 +43,7 @@ from tensordict import TensorDict  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import envs  # noqa: E402
+from gchgg.common import files  # noqa: E402
 from gchgg.run import checkpoint, config, fork, metrics  # noqa: E402
 from gchgg.run.evaluator import Evaluations, EvaluationSchedule, resolve_background  # noqa: E402
 from gchgg.run.lock import RunLock  # noqa: E402
@@ -295,7 +296,7 @@ def _run(cfg: DictConfig, run_dir: Path, overrides: Sequence[str]) -> list[dict[
     for folder in (run_dir, run_dir / REPLAY):  # what a save killed before its rename left behind
         checkpoint.remove_temporaries(folder)
     trainer = Trainer(cfg, run_dir)
-    OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    files.write_text(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))  # atomic: a fork reads it
     log.info(startup_record(cfg, resolved_settings(trainer.agent)))
     if resume and path.exists():
         trainer.load_state_dict(checkpoint.load(path))

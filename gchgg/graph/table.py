@@ -233,6 +233,8 @@ def _save(path: Path, table: np.ndarray, scale: float, vertices: int, params: di
     }
     try:
         files.save(state, path, mode=0o644)  # readable like any cache file
+    except files.DiskFullError:  # the run stops, naming the file: it would find the disk full again soon
+        raise
     except OSError as error:
         warnings.warn(
             f"could not write graph cache file {path} ({error}); continuing without it",

@@ -58,6 +58,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from gchgg.common import files
 from gchgg.run import checkpoint
 
 __all__ = ["MAY_DIFFER", "Fork", "changed_settings", "check_resume", "prepare", "start"]
@@ -237,7 +238,7 @@ def start(fork: Fork, trainer) -> dict[str, Any]:
     if fork.renews_sampler and generator is not None and generator.stopped and trainer.cfg.algo.sampler == "curriculum":
         trainer.sampler.stop_curriculum()  # HGG stopped in the source: the new sampler stops its curriculum too
     record = fork.record()
-    OmegaConf.save(OmegaConf.create(record), trainer.run_dir / RECORD)
+    files.write_text(trainer.run_dir / RECORD, OmegaConf.to_yaml(OmegaConf.create(record)))  # atomic
     changes = ", ".join(f"{k}: {old!r} -> {new!r}" for k, (old, new) in fork.changes.items()) or "none"
     message = (
         f"forked from {fork.source} after iteration {fork.iteration - 1}: this run starts at iteration "
@@ -258,4 +259,9 @@ def link_replay(source: Path, folder: Path, names: list[str]) -> None:
         try:
             os.link(source / name, folder / name)
         except OSError:  # another file system, or links not allowed
-            shutil.copy2(source / name, folder / name)
+            try:
+                with files.naming_disk_full(folder / name, "replay file"):
+                    shutil.copy2(source / name, folder / name)
+            except BaseException:
+                (folder / name).unlink(missing_ok=True)  # no partial copy
+                raise

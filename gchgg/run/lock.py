@@ -56,6 +56,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from gchgg.common import files
+
 __all__ = ["HEARTBEAT_S", "LOCK_FILE", "STALE_AFTER_S", "RunFolderLocked", "RunLock"]
 
 log = logging.getLogger(__name__)
@@ -154,7 +156,8 @@ class RunLock:
         if self._fd is not None:
             raise RuntimeError(f"{self.path}: this lock is already held")
         self.taken_over, self.flock, self._size = None, True, 0
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        with files.naming_disk_full(self.path, "the run folder's lock"):
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -179,7 +182,8 @@ class RunLock:
                             "command": shlex.join(sys.argv)[:2000], "heartbeat": _now(), "slurm_job": job,
                             "slurm_restart": restart}
             self._fd = fd
-            self._write()
+            with files.naming_disk_full(self.path, "the run folder's lock"):
+                self._write()
         except BaseException:
             self._fd = None
             os.close(fd)  # drops the flock if it was taken

@@ -28,6 +28,8 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from gchgg.common import files
+
 __all__ = ["BACKENDS", "STATE", "RunLoggers", "check_backends", "flatten", "make_loggers", "mlflow_tracking_uri"]
 
 BACKENDS = ("csv", "tensorboard", "wandb", "mlflow")
@@ -103,16 +105,18 @@ class RunLoggers:
         if not self.loggers or step <= self.state.get("logged_through", -1):
             return
         values = {key: float(value) for key, value in row.items()}
-        for logger in self.loggers.values():
-            logger.log_metrics(values, step=step)
+        for name, logger in self.loggers.items():
+            with files.naming_disk_full(_where(name, logger), f"the {name} tracker's records in"):
+                logger.log_metrics(values, step=step)
         self.state["logged_through"] = step
         if self.state_path is not None:
-            self.state_path.write_text(json.dumps(self.state, indent=1))
+            files.write_text(self.state_path, json.dumps(self.state, indent=1))  # atomic: a resume reads it
 
     def close(self) -> None:
         """Flush and close every logger (W&B: finish the run; MLflow: end the run)."""
         for name, logger in self.loggers.items():
-            logger.close()
+            with files.naming_disk_full(_where(name, logger), f"the {name} tracker's records in"):
+                logger.close()
             if name == "mlflow":  # MLFlowLogger leaves its run active; end it as FINISHED
                 import mlflow
 
@@ -162,7 +166,8 @@ def make_loggers(
                 from torchrl.record.loggers import TensorboardLogger
 
                 fresh = not (run_dir / "tensorboard").exists()
-                loggers[backend] = TensorboardLogger(exp_name="tensorboard", log_dir=str(run_dir))
+                with files.naming_disk_full(run_dir / "tensorboard", "the tensorboard tracker's records in"):
+                    loggers[backend] = TensorboardLogger(exp_name="tensorboard", log_dir=str(run_dir))
             elif backend == "wandb":
                 from torchrl.record.loggers import WandbLogger
 
@@ -185,14 +190,22 @@ def make_loggers(
                 continue
             if fresh:
                 new.append(backend)
-            state_path.write_text(json.dumps(state, indent=1))
+            files.write_text(state_path, json.dumps(state, indent=1))  # atomic: a resume reads it
         for backend in new:
             if params:
-                loggers[backend].log_hparams(params)
+                with files.naming_disk_full(_where(backend, loggers[backend]), f"the {backend} tracker's records in"):
+                    loggers[backend].log_hparams(params)
     except BaseException:
         RunLoggers(loggers).close()
         raise
     return RunLoggers(loggers, state_path, state)
+
+
+def _where(name: str, logger: Any) -> str:
+    """Where the ``name`` backend's ``logger`` writes (TensorBoard: its folder; MLflow: the tracking URI)."""
+    if name == "tensorboard":
+        return os.path.join(logger.log_dir, logger.exp_name)
+    return str(getattr(logger, "log_dir", None) or os.environ.get("WANDB_DIR") or name)
 
 
 def _mlflow_logger(name: str, experiment: str, uri: str, state: dict) -> tuple[Any, bool]:

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import csv
-import os
+import io
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from gchgg.common import files
 from gchgg.ddpg.agent import DDPGAgent
 from gchgg.run.rollout import fraction
 
@@ -110,15 +111,16 @@ class IterationStats:
 
 def write_csv(history: list[dict[str, float]], path: Path, before: int | None = None) -> None:
     """Write the rows of ``history`` (those of iterations before ``before``, when given) to ``path``
-    atomically: columns in order of first appearance, a row's missing columns empty."""
+    atomically (:func:`gchgg.common.files.write_text`: a failed write, a full disk's
+    :class:`~gchgg.common.files.DiskFullError` included, leaves the previous file whole): columns in order
+    of first appearance, a row's missing columns empty."""
     rows = history if before is None else [row for row in history if row["iteration"] < before]
     columns = list(dict.fromkeys(key for row in rows for key in row))
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, columns)
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(tmp, path)
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, columns)
+    writer.writeheader()
+    writer.writerows(rows)
+    files.write_text(path, text.getvalue())
 
 
 def log_complete(history: list[dict], logged: int, before: int | None, trackers) -> int:
